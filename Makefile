@@ -1,0 +1,35 @@
+# One-command set-up: `make demo` and `make test` both create .venv, install the system library the
+# open3d wheel needs (libusb-1.0-0) when it is missing, and install pcdet with its dependencies.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.pcdet-installed
+
+.PHONY: setup demo test sysdeps bench clean
+
+setup: sysdeps $(STAMP)
+
+sysdeps:
+	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then \
+	  echo "installing libusb-1.0-0 (needed by the open3d wheel)"; \
+	  SUDO=""; [ "$$(id -u)" = 0 ] || SUDO=sudo; \
+	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null; \
+	fi
+
+$(STAMP): pyproject.toml
+	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	@touch $(STAMP)
+
+demo: setup
+	$(BIN)/pcdet demo --out demo_out
+
+test: setup
+	$(BIN)/python -m pytest -q
+
+bench: setup
+	$(BIN)/python scripts/bench_peers.py
+
+clean:
+	rm -rf $(VENV) demo_out .pytest_cache
