@@ -1,0 +1,137 @@
+"""Pinhole camera (OpenCV convention: x right, y down, z forward) and back-projection."""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole intrinsics in pixels; ``width`` x ``height`` is the image size.
+
+    ``depth_scale`` converts a raw 16-bit depth value to metres (``raw * depth_scale = m``).
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    depth_scale: float = 0.001
+
+    def __post_init__(self):
+        for name in ("fx", "fy"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v <= 0:
+                raise InputError(f"camera {name} must be a positive number, got {v!r}")
+        if int(self.width) <= 0 or int(self.height) <= 0:
+            raise InputError(f"camera width/height must be positive, got {self.width}x{self.height}")
+        if not np.isfinite(self.depth_scale) or self.depth_scale <= 0:
+            raise InputError(f"camera depth_scale must be positive, got {self.depth_scale!r}")
+
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) float64 intrinsic matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def to_dict(self) -> dict:
+        return {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,
+                "width": self.width, "height": self.height, "depth_scale": self.depth_scale}
+
+    @classmethod
+    def from_K(cls, K, width: int, height: int, depth_scale: float = 0.001) -> "Camera":
+        K = np.asarray(K, dtype=float).reshape(3, 3)
+        return cls(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), int(width), int(height),
+                   float(depth_scale))
+
+    @classmethod
+    def from_json(cls, path, width: int | None = None, height: int | None = None, key: str | None = None) -> "Camera":
+        """Read a camera file.
+
+        Accepted layouts: ``{"fx","fy","cx","cy","width","height","depth_scale"}`` (depth_scale in m per raw
+        unit); a BOP ``camera.json`` (``fx``.. with ``depth_scale`` in mm per raw unit); a BOP
+        ``scene_camera.json`` (``{"<im_id>": {"cam_K", "depth_scale"}}``, mm per raw unit, ``key`` selects the
+        image, default the first); Open3D's ``PinholeCameraIntrinsic`` JSON (column-major ``intrinsic_matrix``).
+        ``width``/``height`` fill in sizes that the file lacks (BOP scene_camera.json has none).
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: camera file not found")
+        try:
+            data = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
+            raise InputError(f"camera file is not valid JSON ({e})", path) from None
+        if not isinstance(data, dict):
+            raise InputError("camera file must hold a JSON object", path)
+        return cls.from_dict(data, path=path, width=width, height=height, key=key)
+
+    @classmethod
+    def from_dict(cls, data: dict, path=None, width=None, height=None, key=None) -> "Camera":
+        try:
+            if "intrinsic_matrix" in data:
+                # Open3D: column-major 3x3; its depth_scale is raw units per metre (default 1000, i.e. mm)
+                K = np.asarray(data["intrinsic_matrix"], dtype=float).reshape(3, 3).T
+                return cls.from_K(K, data["width"], data["height"], 1.0 / float(data.get("depth_scale", 1000.0)))
+            if "cam_K" in data:  # one BOP scene_camera entry: depth_scale is mm per raw unit
+                return cls.from_K(data["cam_K"], data.get("width", width), data.get("height", height),
+                                  float(data.get("depth_scale", 1.0)) / 1000.0)
+            if "fx" in data:
+                ds = float(data.get("depth_scale", 0.001))
+                # BOP's camera.json gives depth_scale in mm per unit (typically 0.1 or 1.0); pcdet's own
+                # format gives metres per unit (typically 0.001). Values >= 0.05 cannot be m/unit for 16 bits.
+                if "depth_scale" in data and ds >= 0.05:
+                    ds /= 1000.0
+                return cls(float(data["fx"]), float(data["fy"]), float(data["cx"]), float(data["cy"]),
+                           int(data.get("width", width)), int(data.get("height", height)), ds)
+            entries = {k: v for k, v in data.items() if isinstance(v, dict) and "cam_K" in v}
+            if entries:
+                k = str(key) if key is not None else sorted(entries, key=lambda s: int(s) if s.isdigit() else s)[0]
+                if k not in entries:
+                    raise InputError(f"no camera entry for image {k!r}", path)
+                return cls.from_dict(entries[k], path=path, width=width, height=height)
+        except (KeyError, TypeError) as e:
+            raise InputError(f"camera JSON is missing or has a malformed field ({e}); expected fx, fy, cx, cy, "
+                             "width, height[, depth_scale] or BOP cam_K", path) from None
+        except InputError as e:
+            if e.path is None and path is not None:
+                raise InputError(e.problem, path) from None
+            raise
+        raise InputError("camera JSON has none of the known layouts: expected fx, fy, cx, cy, width, height"
+                         "[, depth_scale], or BOP cam_K/depth_scale", path)
+
+    def backproject(self, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Back-project a depth image.
+
+        Parameters
+        ----------
+        depth : (H, W) float, metres, 0 or non-finite where invalid.
+
+        Returns
+        -------
+        points : (N, 3) float64 camera-frame points (m) of the valid pixels, row-major order.
+        pixels : (N,) int64 flat pixel indices ``v * W + u`` of those points.
+        """
+        depth = np.asarray(depth)
+        if depth.shape != (self.height, self.width):
+            raise InputError(f"depth image is {depth.shape[1]}x{depth.shape[0]} but the camera is "
+                             f"{self.width}x{self.height}")
+        flat = depth.reshape(-1)
+        pixels = np.flatnonzero(np.isfinite(flat) & (flat > 0))
+        z = flat[pixels].astype(np.float64)
+        v, u = np.divmod(pixels, self.width)
+        x = (u - self.cx) * z / self.fx
+        y = (v - self.cy) * z / self.fy
+        return np.stack([x, y, z], axis=1), pixels
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) camera-frame points (m) -> (N, 2) float pixel coordinates (u, v)."""
+        p = np.asarray(points, dtype=float)
+        z = p[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.stack([self.fx * p[:, 0] / z + self.cx, self.fy * p[:, 1] / z + self.cy], axis=1)

@@ -1,0 +1,207 @@
+"""Pipeline parameters: one frozen dataclass per stage, composed into ``PipelineConfig``, read from TOML.
+
+Lengths are metres. ``pipelines/default.toml`` sets every field to the defaults below (a test checks).
+"""
+from __future__ import annotations
+
+import dataclasses
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+from .errors import InputError
+
+PIPELINES_DIR = Path(__file__).resolve().parent.parent / "pipelines"
+
+
+def _positive(obj, *names):
+    for n in names:
+        v = getattr(obj, n)
+        if not (v > 0):
+            raise ValueError(f"{type(obj).__name__}.{n} must be > 0, got {v!r}")
+
+
+@dataclass(frozen=True)
+class PreprocessConfig:
+    min_depth: float = 0.1
+    max_depth: float = 2.5
+    voxel: float = 0.004
+    normal_radius: float = 0.012
+    normal_max_nn: int = 30
+    remove_plane: bool = True
+    plane_distance: float = 0.008
+    plane_iterations: int = 300
+    cluster_tolerance: float = 0.012
+    min_cluster_points: int = 40
+
+    def __post_init__(self):
+        _positive(self, "voxel", "normal_radius", "normal_max_nn", "plane_distance", "cluster_tolerance")
+        if not 0 <= self.min_depth < self.max_depth:
+            raise ValueError(f"need 0 <= min_depth < max_depth, got {self.min_depth}, {self.max_depth}")
+
+
+@dataclass(frozen=True)
+class KeypointConfig:
+    method: str = "voxel"
+    spacing: float = 0.008
+    iss_salient_radius: float = 0.012
+    iss_non_max_radius: float = 0.008
+
+    def __post_init__(self):
+        if self.method not in ("voxel", "iss"):
+            raise ValueError(f"KeypointConfig.method must be 'voxel' or 'iss', got {self.method!r}")
+        _positive(self, "spacing", "iss_salient_radius", "iss_non_max_radius")
+
+
+@dataclass(frozen=True)
+class FeatureConfig:
+    radius: float = 0.03
+    max_nn: int = 100
+
+    def __post_init__(self):
+        _positive(self, "radius", "max_nn")
+
+
+@dataclass(frozen=True)
+class MatchingConfig:
+    k: int = 5
+    ratio: float = 1.0
+    mutual: bool = False
+
+    def __post_init__(self):
+        _positive(self, "k")
+        if not 0 < self.ratio <= 1:
+            raise ValueError(f"MatchingConfig.ratio must be in (0, 1] (1 disables the test), got {self.ratio}")
+
+
+@dataclass(frozen=True)
+class GroupingConfig:
+    method: str = "ransac"
+    iterations: int = 3000
+    inlier_distance: float = 0.01
+    edge_tolerance: float = 0.006
+    min_inliers: int = 6
+    max_instances: int = 6
+
+    def __post_init__(self):
+        if self.method not in ("ransac",):
+            raise ValueError(f"GroupingConfig.method {self.method!r} is not available; choose 'ransac'")
+        _positive(self, "iterations", "inlier_distance", "edge_tolerance", "min_inliers", "max_instances")
+
+
+@dataclass(frozen=True)
+class RefineConfig:
+    iterations: int = 30
+    max_distance: float = 0.012
+    kernel: float = 0.006
+
+    def __post_init__(self):
+        _positive(self, "iterations", "max_distance", "kernel")
+
+
+@dataclass(frozen=True)
+class VerifyConfig:
+    depth_tolerance: float = 0.008
+    min_score: float = 0.35
+    min_supported: int = 40
+    max_violation: float = 0.25
+    conflict_overlap: float = 0.3
+
+    def __post_init__(self):
+        _positive(self, "depth_tolerance", "min_supported")
+        for n in ("min_score", "max_violation", "conflict_overlap"):
+            if not 0 <= getattr(self, n) <= 1:
+                raise ValueError(f"VerifyConfig.{n} must be in [0, 1], got {getattr(self, n)}")
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Every parameter of the detector; ``seed`` drives every random step."""
+
+    preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
+    keypoints: KeypointConfig = field(default_factory=KeypointConfig)
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    matching: MatchingConfig = field(default_factory=MatchingConfig)
+    grouping: GroupingConfig = field(default_factory=GroupingConfig)
+    refine: RefineConfig = field(default_factory=RefineConfig)
+    verify: VerifyConfig = field(default_factory=VerifyConfig)
+    seed: int = 0
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def replace(self, **sections) -> "PipelineConfig":
+        """Copy with some fields changed: ``cfg.replace(seed=3, grouping={"iterations": 500})``."""
+        new = {}
+        for k, v in sections.items():
+            cur = getattr(self, k)
+            new[k] = dataclasses.replace(cur, **v) if isinstance(v, dict) else v
+        return dataclasses.replace(self, **new)
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str | None = None) -> "PipelineConfig":
+        kwargs = {}
+        sections = {f.name: f for f in dataclasses.fields(cls)}
+        for key, value in data.items():
+            if key not in sections:
+                raise InputError(f"unknown pipeline section {key!r}; known: {sorted(sections)}", source)
+            if key == "seed":
+                kwargs[key] = int(value)
+                continue
+            sec_cls = type(getattr(cls(), key))
+            known = {f.name for f in dataclasses.fields(sec_cls)}
+            if not isinstance(value, dict):
+                raise InputError(f"[{key}] must be a table", source)
+            bad = set(value) - known
+            if bad:
+                raise InputError(f"unknown field(s) {sorted(bad)} in [{key}]; known: {sorted(known)}", source)
+            try:
+                kwargs[key] = sec_cls(**value)
+            except (TypeError, ValueError) as e:
+                raise InputError(f"[{key}]: {e}", source) from None
+        return cls(**kwargs)
+
+
+def load_pipeline(name_or_path: str | Path | None = None) -> PipelineConfig:
+    """A preset by name (``pipelines/<name>.toml``) or a TOML file path; ``None`` gives the defaults."""
+    if name_or_path is None:
+        return PipelineConfig()
+    p = Path(name_or_path)
+    if not p.suffix and not p.exists():
+        p = PIPELINES_DIR / f"{name_or_path}.toml"
+        if not p.is_file():
+            names = sorted(q.stem for q in PIPELINES_DIR.glob("*.toml"))
+            raise FileNotFoundError(f"{name_or_path}: no such pipeline preset; available: {names}")
+    if not p.is_file():
+        raise FileNotFoundError(f"{p}: pipeline file not found")
+    try:
+        data = tomllib.loads(p.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(f"not valid TOML ({e})", p) from None
+    return PipelineConfig.from_dict(data, source=str(p))
+
+
+def dump_toml(cfg: PipelineConfig) -> str:
+    """The config as TOML text (sections in pipeline order)."""
+    lines = [f"seed = {cfg.seed}", ""]
+    for f in dataclasses.fields(cfg):
+        if f.name == "seed":
+            continue
+        lines.append(f"[{f.name}]")
+        for k, v in dataclasses.asdict(getattr(cfg, f.name)).items():
+            lines.append(f"{k} = {_toml_value(v)}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return f'"{v}"'
+    return repr(v)

@@ -1,0 +1,14 @@
+"""Error types that carry the offending file, so the CLI can print one clear line."""
+from __future__ import annotations
+
+
+class InputError(ValueError):
+    """Bad input data: names the file (when there is one) and the problem.
+
+    Subclasses ``ValueError`` so callers that catch ``ValueError`` keep working.
+    """
+
+    def __init__(self, problem: str, path: object | None = None):
+        self.path = None if path is None else str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}" if self.path else problem)

@@ -1,0 +1,30 @@
+"""FPFH descriptors at keypoints, with neighbours taken from the full (dense) cloud."""
+from __future__ import annotations
+
+import numpy as np
+
+from .config import FeatureConfig
+
+
+def fpfh(points: np.ndarray, normals: np.ndarray, keypoints: np.ndarray, cfg: FeatureConfig) -> np.ndarray:
+    """FPFH (Rusu et al. 2009) of ``points[keypoints]``.
+
+    Parameters
+    ----------
+    points, normals : (N, 3) float64, metres / unit vectors.
+    keypoints : (K,) int64 indices into ``points``.
+
+    Returns
+    -------
+    (K, 33) float32 descriptors (open3d's implementation: deterministic, per-point independent).
+    """
+    from ._o3d import o3d
+
+    if len(keypoints) == 0:
+        return np.zeros((0, 33), np.float32)
+    pc = o3d.t.geometry.PointCloud(o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32)))
+    pc.point.normals = o3d.core.Tensor(np.ascontiguousarray(normals, dtype=np.float32))
+    idx = o3d.core.Tensor(np.ascontiguousarray(keypoints, dtype=np.int64))
+    f = o3d.t.pipelines.registration.compute_fpfh_feature(pc, max_nn=int(cfg.max_nn), radius=float(cfg.radius),
+                                                          indices=idx)
+    return f.numpy().astype(np.float32)

@@ -1,0 +1,27 @@
+"""Keypoint selection: one real sample per voxel of side ``spacing`` (default), or ISS."""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .cloud import voxel_downsample
+from .config import KeypointConfig
+
+
+def select_keypoints(points: np.ndarray, cfg: KeypointConfig) -> np.ndarray:
+    """(K,) int64 sorted indices into ``points`` (N, 3) of the keypoints."""
+    if len(points) == 0:
+        return np.zeros(0, np.int64)
+    if cfg.method == "voxel":
+        _, _, rep = voxel_downsample(points, cfg.spacing)
+        return np.sort(rep)
+    from ._o3d import o3d
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    kp = o3d.geometry.keypoint.compute_iss_keypoints(pc, salient_radius=cfg.iss_salient_radius,
+                                                     non_max_radius=cfg.iss_non_max_radius)
+    kpts = np.asarray(kp.points)
+    if len(kpts) == 0:
+        return np.zeros(0, np.int64)
+    _, idx = cKDTree(points).query(kpts)
+    return np.unique(idx.astype(np.int64))

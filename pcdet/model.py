@@ -1,0 +1,323 @@
+"""Object models: surface samples with outward normals, keypoints, FPFH and diameter, cached on disk.
+
+A model comes from a mesh (PLY/OBJ/STL/OFF/GLB) or a point cloud (PLY without faces, PCD, XYZ). Units are
+metres inside pcdet; files in millimetres (BOP) are scaled, and obvious cases are detected and reported.
+"""
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+from scipy.spatial import ConvexHull
+
+from .cloud import estimate_normals, voxel_downsample
+from .config import PipelineConfig
+from .errors import InputError
+from .features import fpfh
+from .io.atomic import atomic_write_bytes
+from .keypoints import select_keypoints
+
+MESH_SUFFIXES = {".ply", ".obj", ".stl", ".off", ".glb", ".gltf"}
+CLOUD_ONLY_SUFFIXES = {".pcd", ".xyz", ".xyzn", ".pts"}
+MODEL_SUFFIXES = MESH_SUFFIXES | CLOUD_ONLY_SUFFIXES
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+CACHE_VERSION = 2
+# An object wider than this many "metres" is certainly in mm (table-top and warehouse objects are < 3 m).
+MM_DETECT_EXTENT = 3.0
+
+
+class UnitsWarning(UserWarning):
+    """A model's size suggests other units than the ones it was loaded with."""
+
+
+@dataclass
+class ObjectModel:
+    """One object of the library, in metres, in the model file's own frame.
+
+    points, normals : (N, 3) float64 surface samples (one per voxel) and outward unit normals.
+    keypoints : (K,) int64 indices into ``points``; features : (K, 33) float32 FPFH at those keypoints.
+    diameter : largest distance between two model points (m).
+    vertices, faces : (V, 3) float64 m and (F, 3) int64 when the model is a mesh, else None.
+    scale : factor applied to the file's coordinates to get metres.
+    """
+
+    name: str
+    obj_id: int
+    path: str
+    points: np.ndarray
+    normals: np.ndarray
+    keypoints: np.ndarray
+    features: np.ndarray
+    diameter: float
+    scale: float = 1.0
+    vertices: np.ndarray | None = None
+    faces: np.ndarray | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def is_mesh(self) -> bool:
+        return self.faces is not None and len(self.faces) > 0
+
+
+def _hash_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _model_params(cfg: PipelineConfig) -> dict:
+    return {"voxel": cfg.preprocess.voxel, "normal_radius": cfg.preprocess.normal_radius,
+            "normal_max_nn": cfg.preprocess.normal_max_nn, "keypoints": vars(cfg.keypoints),
+            "features": vars(cfg.features), "version": CACHE_VERSION}
+
+
+def default_cache_dir() -> Path:
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "pcdet" / "models"
+
+
+def _read_geometry(path: Path):
+    """(vertices (V,3), faces (F,3) or None, normals (V,3) or None) in file units."""
+    import trimesh
+
+    suffix = path.suffix.lower()
+    if suffix in CLOUD_ONLY_SUFFIXES:
+        from .io.clouds import read_cloud
+
+        cd = read_cloud(path)
+        return cd.points, None, cd.normals
+    try:
+        geom = trimesh.load(str(path), process=False)
+    except Exception as e:  # trimesh raises many types for unreadable files; report it as the file's problem
+        raise InputError(f"cannot read model ({type(e).__name__}: {e})", path) from None
+    if isinstance(geom, trimesh.Scene):
+        meshes = [g for g in geom.dump() if isinstance(g, trimesh.Trimesh)] if len(geom.geometry) else []
+        if not meshes:
+            raise InputError("model file holds no mesh geometry", path)
+        geom = trimesh.util.concatenate(meshes)
+    if isinstance(geom, trimesh.Trimesh) and len(geom.faces) > 0:
+        return np.asarray(geom.vertices, float), np.asarray(geom.faces, np.int64), None
+    verts = np.asarray(getattr(geom, "vertices", np.zeros((0, 3))), float)
+    normals = None
+    if suffix == ".ply" and len(verts):  # point-only PLY: take its normals if it has them
+        from .io.clouds import read_cloud
+
+        normals = read_cloud(path, keep_invalid=True).normals
+    return verts, None, normals
+
+
+def _resolve_scale(verts: np.ndarray, units, path: Path, notes: list[str]) -> float:
+    extent = float(np.ptp(verts, axis=0).max())
+    if units in (None, "auto"):
+        if extent > MM_DETECT_EXTENT:
+            notes.append(f"{path.name}: {extent:.0f} units wide, read as millimetres")
+            return 0.001
+        return 1.0
+    scale = UNITS.get(units) if isinstance(units, str) else float(units)
+    if scale is None:
+        raise InputError(f"unknown units {units!r}; use one of {sorted(UNITS)}, 'auto' or a number", path)
+    if extent * scale > MM_DETECT_EXTENT:
+        warnings.warn(f"{path}: model is {extent * scale:.1f} m wide when read as {units}; is it in millimetres?",
+                      UnitsWarning, stacklevel=3)
+    return scale
+
+
+def _diameter(points: np.ndarray) -> float:
+    try:
+        hull = points[ConvexHull(points).vertices]
+    except Exception:  # flat or degenerate sets: fall back on all points (qhull's errors are not user-facing)
+        hull = points
+    if len(hull) > 3000:
+        hull = hull[np.linspace(0, len(hull) - 1, 3000).astype(int)]
+    d2 = ((hull[:, None, :] - hull[None, :, :]) ** 2).sum(-1)
+    return float(np.sqrt(d2.max()))
+
+
+def build_model(path, cfg: PipelineConfig, units="auto", obj_id: int = 0, name: str | None = None,
+                seed: int = 0) -> ObjectModel:
+    """Load one model file and compute its samples, normals, keypoints and FPFH (no cache)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: model file not found")
+    if path.suffix.lower() not in MODEL_SUFFIXES:
+        raise InputError(f"unknown model format {path.suffix!r}; expected one of {sorted(MODEL_SUFFIXES)}", path)
+    verts, faces, vnormals = _read_geometry(path)
+    verts = verts[np.isfinite(verts).all(axis=1)] if faces is None else verts
+    if len(verts) < 3:
+        raise InputError(f"model has {len(verts)} points; at least 3 are needed", path)
+    notes: list[str] = []
+    scale = _resolve_scale(verts, units, path, notes)
+    verts = verts * scale
+    pp = cfg.preprocess
+    if faces is not None:
+        import trimesh
+
+        mesh = trimesh.Trimesh(verts, faces, process=False)
+        if mesh.area <= 0:
+            raise InputError("mesh has zero surface area", path)
+        count = int(min(400_000, max(5000, 8 * mesh.area / pp.voxel ** 2)))
+        samples, fidx = trimesh.sample.sample_surface(mesh, count, seed=seed)
+        pts, nrm, _ = voxel_downsample(np.asarray(samples), pp.voxel, np.asarray(mesh.face_normals)[fidx])
+    else:
+        pts, nrm, _ = voxel_downsample(verts, pp.voxel, vnormals)
+        if nrm is None or not (np.linalg.norm(nrm, axis=1) > 0.5).all():
+            nrm = _outward_normals(pts, pp.normal_radius, pp.normal_max_nn)
+    if len(pts) < 10:
+        raise InputError(f"model has only {len(pts)} samples at voxel {pp.voxel} m: is it tiny, or in the "
+                         "wrong units?", path)
+    kp = select_keypoints(pts, cfg.keypoints)
+    feats = fpfh(pts, nrm, kp, cfg.features)
+    return ObjectModel(name or path.stem, int(obj_id), str(path), pts, nrm, kp, feats, _diameter(pts), scale,
+                       verts if faces is not None else None, faces, notes)
+
+
+def _outward_normals(pts: np.ndarray, radius: float, max_nn: int) -> np.ndarray:
+    from ._o3d import o3d
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    pc.normals = o3d.utility.Vector3dVector(estimate_normals(pts, radius, max_nn, viewpoint=None))
+    if len(pts) > 10:
+        pc.orient_normals_consistent_tangent_plane(10)
+    n = np.asarray(pc.normals).copy()
+    # consistent orientation is up to one global sign: choose the one where most normals point away
+    # from the centroid (outward for closed objects and for single views of convex-ish ones)
+    if ((pts - pts.mean(axis=0)) * n).sum(axis=1).mean() < 0:
+        n = -n
+    return n
+
+
+def _save(model: ObjectModel, path: Path) -> None:
+    buf = io.BytesIO()
+    meta = {k: getattr(model, k) for k in ("name", "obj_id", "path", "diameter", "scale", "notes")}
+    arrays = {k: getattr(model, k) for k in ("points", "normals", "keypoints", "features")}
+    if model.is_mesh:
+        arrays.update(vertices=model.vertices, faces=model.faces)
+    np.savez(buf, meta=np.array(json.dumps(meta)), **arrays)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def _load(path: Path) -> ObjectModel:
+    with np.load(path, allow_pickle=False) as z:
+        meta = json.loads(str(z["meta"]))
+        arrays = {k: z[k] for k in z.files if k != "meta"}
+    return ObjectModel(**meta, **arrays)
+
+
+def load_model(path, cfg: PipelineConfig | None = None, units="auto", obj_id: int = 0, name: str | None = None,
+               cache_dir: Path | str | None | bool = None) -> ObjectModel:
+    """A model, from the on-disk cache when the file's bytes and the parameters are unchanged.
+
+    ``cache_dir=False`` disables the cache; ``None`` uses ``$XDG_CACHE_HOME/pcdet/models``.
+    """
+    cfg = cfg or PipelineConfig()
+    path = Path(path)
+    if cache_dir is False:
+        return build_model(path, cfg, units, obj_id, name)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: model file not found")
+    key_src = json.dumps({"file": _hash_file(path), "units": units, "obj_id": int(obj_id), "name": name,
+                          "params": _model_params(cfg)}, sort_keys=True, default=str)
+    key = hashlib.sha256(key_src.encode()).hexdigest()[:24]
+    cdir = Path(cache_dir) if cache_dir else default_cache_dir()
+    cpath = cdir / f"{path.stem}-{key}.npz"
+    if cpath.is_file():
+        try:
+            m = _load(cpath)
+            m.path = str(path)
+            return m
+        except (OSError, ValueError, KeyError):
+            pass  # a corrupt cache entry is rebuilt below
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        m = build_model(path, cfg, units, obj_id, name)
+    for w in caught:  # re-emit so callers see them on this first (uncached) load ...
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    m.notes.extend(str(w.message) for w in caught if issubclass(w.category, UnitsWarning))  # ... and later ones
+    try:
+        _save(m, cpath)
+    except OSError:
+        pass  # a read-only cache location only costs speed
+    return m
+
+
+class ModelLibrary:
+    """The objects pcdet looks for: an ordered list of ``ObjectModel`` with lookup by name and id."""
+
+    def __init__(self, models: list[ObjectModel]):
+        if not models:
+            raise InputError("model library is empty")
+        ids = [m.obj_id for m in models]
+        if len(set(ids)) != len(ids):
+            raise InputError(f"model ids are not unique: {ids}")
+        self.models = list(models)
+
+    def __len__(self) -> int:
+        return len(self.models)
+
+    def __iter__(self) -> Iterator[ObjectModel]:
+        return iter(self.models)
+
+    def __getitem__(self, i: int) -> ObjectModel:
+        return self.models[i]
+
+    def by_id(self, obj_id: int) -> ObjectModel:
+        for m in self.models:
+            if m.obj_id == obj_id:
+                return m
+        raise KeyError(f"no model with obj_id {obj_id}")
+
+    def by_name(self, name: str) -> ObjectModel:
+        for m in self.models:
+            if m.name == name:
+                return m
+        raise KeyError(f"no model named {name!r}")
+
+    @property
+    def notes(self) -> list[str]:
+        return [n for m in self.models for n in m.notes]
+
+    @classmethod
+    def from_folder(cls, folder, cfg: PipelineConfig | None = None, units="auto",
+                    cache_dir: Path | str | None | bool = None,
+                    progress: Callable[[str], None] | None = None) -> "ModelLibrary":
+        """Every model file in ``folder`` (sorted by name). A BOP ``models/`` folder (``models_info.json``
+        beside ``obj_NNNNNN.ply``) keeps its ids and is read in millimetres unless ``units`` says otherwise;
+        elsewhere ids are 1, 2, ... in file-name order and units are auto-detected."""
+        folder = Path(folder)
+        if not folder.is_dir():
+            raise FileNotFoundError(f"{folder}: model folder not found")
+        info_path = folder / "models_info.json"
+        info = {}
+        if info_path.is_file():
+            try:
+                info = json.loads(info_path.read_text())
+            except json.JSONDecodeError as e:
+                raise InputError(f"not valid JSON ({e})", info_path) from None
+        files = sorted(p for p in folder.iterdir() if p.suffix.lower() in MODEL_SUFFIXES and p.is_file())
+        if not files:
+            raise InputError(f"no model files ({', '.join(sorted(MODEL_SUFFIXES))})", folder)
+        models = []
+        for i, p in enumerate(files, start=1):
+            obj_id, name, u = i, p.stem, units
+            if info and p.stem.startswith("obj_") and p.stem[4:].isdigit():
+                obj_id = int(p.stem[4:])
+                entry = info.get(str(obj_id), {})
+                name = entry.get("name", p.stem)
+                u = "mm" if units in (None, "auto") else units
+            if progress:
+                progress(name)
+            models.append(load_model(p, cfg, u, obj_id, name, cache_dir))
+        return cls(models)
+
+    @classmethod
+    def from_files(cls, paths, cfg: PipelineConfig | None = None, units="auto", cache_dir=None) -> "ModelLibrary":
+        return cls([load_model(p, cfg, units, i, None, cache_dir) for i, p in enumerate(paths, start=1)])
