@@ -31,7 +31,7 @@ class PreprocessConfig:
     min_depth: float = 0.1
     max_depth: float = 2.5
     voxel: float = 0.004
-    normal_radius: float = 0.012
+    normal_radius: float = 0.01
     normal_max_nn: int = 30
     remove_plane: bool = True
     plane_distance: float = 0.008
@@ -82,16 +82,19 @@ class MatchingConfig:
 @dataclass(frozen=True)
 class GroupingConfig:
     method: str = "ransac"
-    iterations: int = 3000
+    seeds: int = 40
+    iterations: int = 1200
     inlier_distance: float = 0.01
     edge_tolerance: float = 0.006
-    min_inliers: int = 6
-    max_instances: int = 6
+    normal_tolerance_deg: float = 20.0
+    min_inliers: int = 5
+    max_instances: int = 4
 
     def __post_init__(self):
         if self.method not in ("ransac",):
             raise ValueError(f"GroupingConfig.method {self.method!r} is not available; choose 'ransac'")
-        _positive(self, "iterations", "inlier_distance", "edge_tolerance", "min_inliers", "max_instances")
+        _positive(self, "seeds", "iterations", "inlier_distance", "edge_tolerance", "normal_tolerance_deg",
+                  "min_inliers", "max_instances")
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ MESH_SUFFIXES = {".ply", ".obj", ".stl", ".off", ".glb", ".gltf"}
 CLOUD_ONLY_SUFFIXES = {".pcd", ".xyz", ".xyzn", ".pts"}
 MODEL_SUFFIXES = MESH_SUFFIXES | CLOUD_ONLY_SUFFIXES
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
-CACHE_VERSION = 2
+CACHE_VERSION = 3
 # An object wider than this many "metres" is certainly in mm (table-top and warehouse objects are < 3 m).
 MM_DETECT_EXTENT = 3.0
 
@@ -166,7 +166,11 @@ def build_model(path, cfg: PipelineConfig, units="auto", obj_id: int = 0, name: 
             raise InputError("mesh has zero surface area", path)
         count = int(min(400_000, max(5000, 8 * mesh.area / pp.voxel ** 2)))
         samples, fidx = trimesh.sample.sample_surface(mesh, count, seed=seed)
-        pts, nrm, _ = voxel_downsample(np.asarray(samples), pp.voxel, np.asarray(mesh.face_normals)[fidx])
+        pts, face_nrm, _ = voxel_downsample(np.asarray(samples), pp.voxel, np.asarray(mesh.face_normals)[fidx])
+        # estimate normals exactly as the scene's are (PCA at the same radius), so that descriptors and pair
+        # features compare like with like; the mesh only decides which way each normal points
+        nrm = estimate_normals(pts, pp.normal_radius, pp.normal_max_nn, viewpoint=None)
+        nrm[(nrm * face_nrm).sum(axis=1) < 0] *= -1
     else:
         pts, nrm, _ = voxel_downsample(verts, pp.voxel, vnormals)
         if nrm is None or not (np.linalg.norm(nrm, axis=1) > 0.5).all():

@@ -1,0 +1,68 @@
+"""Closed-form rigid alignment of corresponding points: Kabsch (weighted, batched) and Umeyama (with scale)."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Rigid ``T_dst_src`` (4, 4) minimising sum w ||R src + t - dst||^2; ``R`` is a proper rotation (det +1).
+
+    src, dst : (N, 3) float, N >= 3 corresponding points; weights : (N,) non-negative or None.
+    """
+    return kabsch_batch(np.asarray(src, float)[None], np.asarray(dst, float)[None],
+                        None if weights is None else np.asarray(weights, float)[None])[0]
+
+
+def kabsch_batch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Kabsch for B problems at once: src, dst (B, N, 3), weights (B, N) -> (B, 4, 4)."""
+    if src.shape != dst.shape or src.ndim != 3 or src.shape[2] != 3:
+        raise ValueError(f"kabsch needs matching (B, N, 3) arrays, got {src.shape} and {dst.shape}")
+    B, N, _ = src.shape
+    w = np.ones((B, N)) if weights is None else weights
+    wsum = w.sum(axis=1, keepdims=True)
+    if np.any(wsum <= 0):
+        raise ValueError("kabsch weights sum to zero")
+    w = w / wsum
+    cs = (w[..., None] * src).sum(axis=1)
+    cd = (w[..., None] * dst).sum(axis=1)
+    H = np.einsum("bn,bni,bnj->bij", w, src - cs[:, None], dst - cd[:, None])
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.einsum("bij,bjk->bik", U, Vt).transpose(0, 2, 1)))
+    d[d == 0] = 1.0
+    D = np.zeros((B, 3, 3))
+    D[:, 0, 0] = 1
+    D[:, 1, 1] = 1
+    D[:, 2, 2] = d
+    R = np.einsum("bji,bjk,blk->bil", Vt, D, U)  # V D U^T
+    T = np.tile(np.eye(4), (B, 1, 1))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = cd - np.einsum("bij,bj->bi", R, cs)
+    return T
+
+
+def umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray]:
+    """Similarity ``dst ~ s R src + t`` (Umeyama 1991): returns ``(s, T)`` with T holding R and t; det R = +1."""
+    src, dst = np.asarray(src, float), np.asarray(dst, float)
+    cs, cd = src.mean(0), dst.mean(0)
+    a, b = src - cs, dst - cd
+    H = a.T @ b / len(src)
+    U, S, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
+    D = np.diag([1.0, 1.0, d])
+    R = Vt.T @ D @ U.T
+    var = (a ** 2).sum() / len(src)
+    s = float((S * np.diag(D)).sum() / var)
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = cd - s * R @ cs
+    return s, T
+
+
+def transform(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply a (4, 4) transform to (N, 3) points."""
+    return points @ T[:3, :3].T + T[:3, 3]
+
+
+def rotation_angle_deg(R: np.ndarray) -> float:
+    """Angle (degrees) of a 3x3 rotation."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(R[:3, :3]) - 1) / 2, -1, 1))))

@@ -1,0 +1,128 @@
+"""BOP datasets (https://bop.felk.cvut.cz): ``<root>/<split>/<scene>/{depth,rgb}/<im>.png`` with
+``scene_camera.json``, ``scene_gt.json`` (poses in mm) and ``<root>/models/``."""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import InputError
+from ..frame import Frame
+from ..io.depth import read_depth_png
+
+
+@dataclass(frozen=True)
+class BopImage:
+    scene_id: int
+    im_id: int
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise InputError(f"not valid JSON ({e})", path) from None
+
+
+def pose_from_bop(entry: dict) -> np.ndarray:
+    """4x4 ``T_cam_model`` in metres from a BOP ``cam_R_m2c`` / ``cam_t_m2c`` (mm) entry."""
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(entry["cam_R_m2c"], float).reshape(3, 3)
+    T[:3, 3] = np.asarray(entry["cam_t_m2c"], float) / 1000.0
+    return T
+
+
+class BopDataset:
+    """Lazy access to the images of one split of a BOP dataset.
+
+    ``root`` may be the dataset folder (holding ``models/`` and a split folder such as ``test/``) or a split
+    folder itself (holding scene folders).
+    """
+
+    def __init__(self, root, split: str | None = None):
+        root = Path(root)
+        if not root.is_dir():
+            raise FileNotFoundError(f"{root}: dataset folder not found")
+        if _is_split(root):
+            self.split_dir, self.root = root, root.parent
+        else:
+            cands = [root / split] if split else sorted(p for p in root.iterdir() if p.is_dir() and _is_split(p))
+            cands = [c for c in cands if c.is_dir() and _is_split(c)]
+            if not cands:
+                raise InputError("no BOP split folder (scene folders with scene_camera.json) found", root)
+            self.split_dir, self.root = cands[0], root
+        self.models_dir = self.root / "models" if (self.root / "models").is_dir() else None
+        cam = self.root / "camera.json"
+        self.base_camera = _read_json(cam) if cam.is_file() else {}
+        self.images: list[BopImage] = []
+        for sdir in sorted(p for p in self.split_dir.iterdir() if p.is_dir() and p.name.isdigit()):
+            sc = sdir / "scene_camera.json"
+            if not sc.is_file():
+                continue
+            ids = sorted(int(k) for k in _read_json(sc))
+            self.images += [BopImage(int(sdir.name), i) for i in ids]
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def __iter__(self):
+        return iter(self.images)
+
+    def scene_dir(self, scene_id: int) -> Path:
+        return self.split_dir / f"{scene_id:06d}"
+
+    @lru_cache(maxsize=64)
+    def _scene_json(self, scene_id: int, name: str) -> dict:
+        p = self.scene_dir(scene_id) / name
+        return _read_json(p) if p.is_file() else {}
+
+    def depth_path(self, img: BopImage) -> Path:
+        return self.scene_dir(img.scene_id) / "depth" / f"{img.im_id:06d}.png"
+
+    def rgb_path(self, img: BopImage) -> Path | None:
+        for sub, ext in (("rgb", ".png"), ("rgb", ".jpg"), ("gray", ".png"), ("gray", ".tif")):
+            p = self.scene_dir(img.scene_id) / sub / f"{img.im_id:06d}{ext}"
+            if p.is_file():
+                return p
+        return None
+
+    def camera(self, img: BopImage) -> Camera:
+        entry = self._scene_json(img.scene_id, "scene_camera.json").get(str(img.im_id))
+        src = self.scene_dir(img.scene_id) / "scene_camera.json"
+        if entry is None:
+            raise InputError(f"no entry for image {img.im_id}", src)
+        w, h = self.base_camera.get("width"), self.base_camera.get("height")
+        if w is None or h is None:
+            raw = read_depth_png(self.depth_path(img))
+            h, w = raw.shape
+        return Camera.from_dict(dict(entry), path=src, width=w, height=h)
+
+    def frame(self, img: BopImage) -> Frame:
+        rgb = self.rgb_path(img)
+        return Frame.from_depth_png(self.depth_path(img), self.camera(img), rgb_path=rgb,
+                                    info={"scene_id": img.scene_id, "im_id": img.im_id})
+
+    def gt(self, img: BopImage) -> list[dict]:
+        """Ground truth of one image: ``[{"obj_id", "T_cam_model" (4, 4, m), "visib_fract" or None}]``."""
+        entries = self._scene_json(img.scene_id, "scene_gt.json").get(str(img.im_id), [])
+        infos = self._scene_json(img.scene_id, "scene_gt_info.json").get(str(img.im_id), [])
+        out = []
+        for k, e in enumerate(entries):
+            vf = infos[k].get("visib_fract") if k < len(infos) else None
+            out.append({"obj_id": int(e["obj_id"]), "T_cam_model": pose_from_bop(e), "visib_fract": vf})
+        return out
+
+    def targets(self, img: BopImage) -> dict[int, int]:
+        """``{obj_id: instance count}`` from scene_gt.json (BOP's localisation task)."""
+        t: dict[int, int] = {}
+        for g in self.gt(img):
+            t[g["obj_id"]] = t.get(g["obj_id"], 0) + 1
+        return t
+
+
+def _is_split(p: Path) -> bool:
+    return any((s / "scene_camera.json").is_file() for s in p.iterdir() if s.is_dir())

@@ -1,0 +1,143 @@
+"""The detector: the only place that knows the order of the stages."""
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .config import PipelineConfig
+from .features import fpfh
+from .frame import Frame
+from .grouping import Hypothesis, ransac_instances
+from .grouping.pairs import model_pair_table, scene_pairs
+from .keypoints import select_keypoints
+from .matching import match_features
+from .model import ModelLibrary
+from .preprocess import preprocess
+from .refine import icp
+from .verify import Verification, resolve_conflicts, verify
+
+
+@dataclass
+class Detection:
+    """One found object instance. ``T_cam_model`` (4, 4) maps model points (m) into the camera frame (for
+    point-cloud inputs: into the cloud file's frame)."""
+
+    model: str
+    obj_id: int
+    score: float
+    T_cam_model: np.ndarray
+    n_inliers: int
+    fitness: float
+    rmse_m: float
+    visible_fraction: float
+
+    def to_dict(self) -> dict:
+        return {"model": self.model, "obj_id": self.obj_id, "score": round(float(self.score), 6),
+                "T_cam_model": np.round(self.T_cam_model, 9).tolist(), "n_inliers": int(self.n_inliers),
+                "fitness": round(float(self.fitness), 6), "rmse_m": round(float(self.rmse_m), 9),
+                "visible_fraction": round(float(self.visible_fraction), 6)}
+
+
+@dataclass
+class DetectionResult:
+    """Detections (best score first), the time each stage took (s), and counts for diagnosis."""
+
+    detections: list[Detection]
+    timing_s: dict[str, float] = field(default_factory=dict)
+    stats: dict[str, int] = field(default_factory=dict)
+
+
+class _Timer:
+    def __init__(self):
+        self.t: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, name):
+        t0 = time.perf_counter()
+        yield
+        self.t[name] = self.t.get(name, 0.0) + time.perf_counter() - t0
+
+
+class Detector:
+    """Find the library's objects in frames.
+
+    >>> det = Detector(ModelLibrary.from_folder("models"), load_pipeline("default"))
+    >>> result = det.detect(Frame.from_depth_png("depth.png", "camera.json"))
+    """
+
+    def __init__(self, library: ModelLibrary, config: PipelineConfig | None = None):
+        self.library = library
+        self.config = config or PipelineConfig()
+        self._trees = [cKDTree(m.features) for m in library]
+        self._tables = [model_pair_table(m.points[m.keypoints], m.normals[m.keypoints]) for m in library]
+
+    def detect(self, frame: Frame, targets: dict[int, int] | None = None) -> DetectionResult:
+        """Detect objects in ``frame``.
+
+        targets : optional ``{obj_id: count}`` (BOP localisation): only those objects are searched and the
+            ``count`` best-scoring verified instances of each are kept, without the score threshold.
+        """
+        cfg = self.config
+        tm = _Timer()
+        with tm("preprocess"):
+            scene = preprocess(frame, cfg.preprocess, cfg.seed)
+        stats = {"scene_points": len(scene.points)}
+        with tm("keypoints"):
+            kp = select_keypoints(scene.points, cfg.keypoints)
+        with tm("features"):
+            feats = fpfh(scene.points, scene.normals, kp, cfg.features)
+        stats["scene_keypoints"] = len(kp)
+        models = [i for i, m in enumerate(self.library) if targets is None or m.obj_id in targets]
+        hyps: list[Hypothesis] = []
+        seeds = np.random.SeedSequence(cfg.seed).spawn(len(self.library))
+        with tm("grouping"):
+            kpts = scene.points[kp]
+            pairs = scene_pairs(kpts, scene.normals[kp], scene.labels[kp],
+                                max((self.library[i].diameter for i in models), default=0.0))
+        for i in models:
+            m = self.library[i]
+            with tm("matching"):
+                c = match_features(feats, m.features, cfg.matching, self._trees[i])
+            with tm("grouping"):
+                rng = np.random.default_rng(seeds[i])
+                hyps += ransac_instances(kpts, c.model, m.points[m.keypoints], pairs, self._tables[i], m.diameter,
+                                         cfg.grouping, rng, i, m.points)
+        stats["hypotheses"] = len(hyps)
+        if len(hyps) == 0 or len(scene.points) == 0:
+            return DetectionResult([], tm.t, stats)
+        with tm("refine"):
+            tree = cKDTree(scene.points)
+            regs = [icp(self.library[h.model_index].points, scene.points, scene.normals, h.T_cam_model, cfg.refine,
+                        self.library[h.model_index].normals, tree, np.zeros(3)) for h in hyps]
+        with tm("verify"):
+            vers: list[Verification] = [verify(self.library[h.model_index], r.T_target_source, frame.depth,
+                                               frame.camera, cfg.verify, cfg.preprocess.voxel)
+                                        for h, r in zip(hyps, regs)]
+            order = sorted(range(len(hyps)), key=lambda j: (-vers[j].score, j))
+            if targets is None:
+                order = [j for j in order if vers[j].accepted(cfg.verify)]
+            else:
+                order = [j for j in order if vers[j].n_supported > 0]
+            kept = resolve_conflicts(order, [v.support for v in vers], cfg.verify.conflict_overlap,
+                                     frame.depth.size)
+            if targets is not None:
+                left = dict(targets)
+                chosen = []
+                for j in kept:
+                    oid = self.library[hyps[j].model_index].obj_id
+                    if left.get(oid, 0) > 0:
+                        chosen.append(j)
+                        left[oid] -= 1
+                kept = chosen
+        dets = []
+        for j in kept:
+            m = self.library[hyps[j].model_index]
+            r, v = regs[j], vers[j]
+            dets.append(Detection(m.name, m.obj_id, v.score, frame.T_input_cam @ r.T_target_source,
+                                  hyps[j].n_inliers, r.fitness, r.rmse_m, v.visible_fraction))
+        stats["detections"] = len(dets)
+        return DetectionResult(dets, tm.t, stats)

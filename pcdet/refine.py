@@ -1,0 +1,77 @@
+"""ICP refinement: point-to-plane with a Tukey robust kernel, deterministic (no threaded reductions)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from .config import RefineConfig
+
+
+@dataclass
+class RegistrationResult:
+    """``T_target_source`` (4, 4) and how well it fits: ``fitness`` is the share of source points with a
+    target point within ``max_distance``, ``rmse_m`` the RMS point-to-plane residual of those points."""
+
+    T_target_source: np.ndarray
+    fitness: float
+    rmse_m: float
+    n_inliers: int
+    iterations: int
+    converged: bool
+
+
+def icp(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_init: np.ndarray,
+        cfg: RefineConfig, source_normals: np.ndarray | None = None, target_tree: cKDTree | None = None,
+        viewpoint: np.ndarray | None = None) -> RegistrationResult:
+    """Point-to-plane ICP of ``source`` (N, 3) onto ``target`` (M, 3) with ``target_normals`` (M, 3).
+
+    With ``source_normals`` and a ``viewpoint`` (target frame, e.g. the camera origin), only source points whose
+    normals face the viewpoint take part, as only they can have been seen.
+    """
+    tree = target_tree if target_tree is not None else cKDTree(target)
+    T = np.asarray(T_init, float).copy()
+    converged = False
+    it = 0
+    for it in range(1, cfg.iterations + 1):
+        p, q, n, w, _ = _pairs(source, source_normals, target, target_normals, tree, T, cfg, viewpoint)
+        if len(p) < 6:
+            break
+        r = ((p - q) * n).sum(axis=1)
+        J = np.concatenate([np.cross(p, n), n], axis=1)  # d r / d (omega, t) at the current pose
+        A = (J * w[:, None]).T @ J
+        b = -(J * w[:, None]).T @ r
+        try:
+            x = np.linalg.solve(A + 1e-9 * np.eye(6), b)
+        except np.linalg.LinAlgError:
+            break
+        dT = np.eye(4)
+        dT[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
+        dT[:3, 3] = x[3:]
+        T = dT @ T
+        if np.linalg.norm(x[:3]) < 1e-5 and np.linalg.norm(x[3:]) < 1e-6:
+            converged = True
+            break
+    p, q, n, w, n_src = _pairs(source, source_normals, target, target_normals, tree, T, cfg, viewpoint)
+    r = ((p - q) * n).sum(axis=1)
+    rmse = float(np.sqrt((r ** 2).mean())) if len(r) else float("inf")
+    return RegistrationResult(T, len(p) / max(n_src, 1), rmse, len(p), it, converged)
+
+
+def _pairs(source, source_normals, target, target_normals, tree, T, cfg, viewpoint):
+    p = source @ T[:3, :3].T + T[:3, 3]
+    if source_normals is not None and viewpoint is not None:
+        ns = source_normals @ T[:3, :3].T
+        front = ((viewpoint - p) * ns).sum(axis=1) > 0
+        p = p[front]
+    n_src = len(p)
+    d, j = tree.query(p, distance_upper_bound=cfg.max_distance)
+    ok = np.isfinite(d)
+    p, j = p[ok], j[ok]
+    q, n = target[j], target_normals[j]
+    r = ((p - q) * n).sum(axis=1)
+    u = r / cfg.kernel
+    w = np.where(np.abs(u) < 1, (1 - u ** 2) ** 2, 0.0)
+    return p, q, n, w, n_src

@@ -1,0 +1,98 @@
+"""Hypothesis verification against the measured depth, and conflict resolution between hypotheses.
+
+The model is rendered at its pose (meshes with open3d's RaycastingScene, point models by z-buffer splatting),
+so self-occlusion is exact. Each pixel the model would cover is compared with the measured depth d against the
+rendered depth r (tolerance tau):
+  supported  |d - r| <= tau       the measurement agrees with the model's surface;
+  occluded   d < r - tau          something in front hides the model there (no evidence either way);
+  violation  d > r + tau          the sensor sees through where the model's surface would be;
+  unknown    d == 0               no measurement.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera import Camera
+from .config import VerifyConfig
+from .model import ObjectModel
+from .render import render_meshes, render_points
+
+
+@dataclass
+class Verification:
+    """score = supported / (supported + violations + occluded / 2), in [0, 1];
+    fitness = supported / (supported + violations); visible_fraction = supported / rendered pixels.
+    support : (S,) flat pixel indices of the supported pixels (what this hypothesis claims)."""
+
+    score: float
+    fitness: float
+    visible_fraction: float
+    n_rendered: int
+    n_supported: int
+    n_occluded: int
+    n_violations: int
+    support: np.ndarray
+
+    def accepted(self, cfg: VerifyConfig) -> bool:
+        return (self.n_supported >= cfg.min_supported and self.score >= cfg.min_score
+                and self.n_violations <= cfg.max_violation * max(self.n_supported + self.n_violations, 1))
+
+
+def _bbox_pixels(camera: Camera, pts_cam: np.ndarray) -> np.ndarray | None:
+    front = pts_cam[:, 2] > 1e-3
+    if not front.any():
+        return None
+    uv = camera.project(pts_cam[front])
+    u0, v0 = np.floor(uv.min(axis=0)).astype(int) - 1
+    u1, v1 = np.ceil(uv.max(axis=0)).astype(int) + 1
+    u0, v0 = max(u0, 0), max(v0, 0)
+    u1, v1 = min(u1, camera.width - 1), min(v1, camera.height - 1)
+    if u0 > u1 or v0 > v1:
+        return None
+    vv, uu = np.mgrid[v0:v1 + 1, u0:u1 + 1]
+    return (vv * camera.width + uu).reshape(-1)
+
+
+def render_model(model: ObjectModel, T_cam_model: np.ndarray, camera: Camera, spacing: float) -> np.ndarray:
+    """(H, W) float32 depth (m) of the model alone at ``T_cam_model``; 0 off the model."""
+    pts = model.points @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+    if model.is_mesh:
+        pix = _bbox_pixels(camera, pts)
+        if pix is None:
+            return np.zeros((camera.height, camera.width), np.float32)
+        return render_meshes(camera, [(model.vertices, model.faces, T_cam_model)], pix).depth
+    return render_points(camera, pts, spacing)
+
+
+def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camera: Camera, cfg: VerifyConfig,
+           spacing: float = 0.004) -> Verification:
+    """Compare ``model`` rendered at ``T_cam_model`` with measured ``depth`` (H, W) float32 metres."""
+    r = render_model(model, T_cam_model, camera, spacing).reshape(-1)
+    d = depth.reshape(-1)
+    pix = np.flatnonzero(r > 0)
+    rv, dv = r[pix], d[pix]
+    known = dv > 0
+    tau = cfg.depth_tolerance
+    sup = known & (np.abs(dv - rv) <= tau)
+    occ = known & (dv < rv - tau)
+    vio = known & (dv > rv + tau)
+    ns, no, nv = int(sup.sum()), int(occ.sum()), int(vio.sum())
+    score = ns / max(ns + nv + 0.5 * no, 1.0)
+    return Verification(score, ns / max(ns + nv, 1), ns / max(len(pix), 1), len(pix), ns, no, nv, pix[sup])
+
+
+def resolve_conflicts(order: list[int], supports: list[np.ndarray], max_overlap: float, n_pixels: int) -> list[int]:
+    """Greedy: walk ``order`` (best first) and keep an item unless more than ``max_overlap`` of its supported
+    pixels (flat indices < ``n_pixels``) are already claimed by a kept one. Returns the kept items, in order."""
+    claimed = np.zeros(n_pixels, bool)
+    kept = []
+    for i in order:
+        s = supports[i]
+        if len(s) == 0:
+            continue
+        if claimed[s].mean() <= max_overlap:
+            kept.append(i)
+            claimed[s] = True
+    return kept
