@@ -13,12 +13,12 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 
-def voxel_downsample(points: np.ndarray, voxel: float, normals: np.ndarray | None = None
-                     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+def voxel_downsample(points: np.ndarray, voxel: float, normals: np.ndarray | None = None,
+                     representatives: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """Average the points (and normals) that fall in each cubic voxel of side ``voxel`` (m).
 
-    Returns ``(points (M, 3), normals (M, 3) or None, index (M,))`` where ``index`` is, for each voxel,
-    the input point closest to the voxel's mean (a real sample to hang features on).
+    Returns ``(points (M, 3), normals (M, 3) or None, index (M,) or None)`` where ``index`` is, for each voxel,
+    the input point closest to the voxel's mean (a real sample to hang features on), when ``representatives``.
     """
     points = np.asarray(points, dtype=np.float64)
     if len(points) == 0:
@@ -27,8 +27,14 @@ def voxel_downsample(points: np.ndarray, voxel: float, normals: np.ndarray | Non
     keys -= keys.min(axis=0)
     dims = keys.max(axis=0) + 1
     lin = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
-    uniq, inv, counts = np.unique(lin, return_inverse=True, return_counts=True)
-    m = len(uniq)
+    order = np.argsort(lin, kind="stable")
+    sl = lin[order]
+    first = np.ones(len(sl), bool)
+    first[1:] = sl[1:] != sl[:-1]
+    inv = np.empty(len(lin), np.int64)
+    inv[order] = np.cumsum(first) - 1
+    counts = np.bincount(inv)
+    m = len(counts)
     mean = np.stack([np.bincount(inv, weights=points[:, i], minlength=m) for i in range(3)], axis=1)
     mean /= counts[:, None]
     nout = None
@@ -36,6 +42,8 @@ def voxel_downsample(points: np.ndarray, voxel: float, normals: np.ndarray | Non
         nsum = np.stack([np.bincount(inv, weights=normals[:, i], minlength=m) for i in range(3)], axis=1)
         norm = np.linalg.norm(nsum, axis=1, keepdims=True)
         nout = np.divide(nsum, norm, out=np.zeros_like(nsum), where=norm > 0)
+    if not representatives:
+        return mean, nout, None
     # representative: the point nearest to its voxel mean (ties: lowest index, by stable lexsort)
     d2 = ((points - mean[inv]) ** 2).sum(axis=1)
     order = np.lexsort((np.arange(len(points)), d2, inv))

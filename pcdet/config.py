@@ -59,6 +59,17 @@ class KeypointConfig:
 
 
 @dataclass(frozen=True)
+class ModelConfig:
+    """How model descriptors are made: from ``views`` rendered partial views at ``view_distance`` m."""
+
+    views: int = 30
+    view_distance: float = 0.7
+
+    def __post_init__(self):
+        _positive(self, "views", "view_distance")
+
+
+@dataclass(frozen=True)
 class FeatureConfig:
     radius: float = 0.03
     max_nn: int = 100
@@ -82,18 +93,17 @@ class MatchingConfig:
 @dataclass(frozen=True)
 class GroupingConfig:
     method: str = "ransac"
-    seeds: int = 40
-    iterations: int = 1200
+    iterations: int = 400
     inlier_distance: float = 0.01
     edge_tolerance: float = 0.006
     normal_tolerance_deg: float = 20.0
     min_inliers: int = 5
-    max_instances: int = 4
+    max_instances: int = 2
 
     def __post_init__(self):
         if self.method not in ("ransac",):
             raise ValueError(f"GroupingConfig.method {self.method!r} is not available; choose 'ransac'")
-        _positive(self, "seeds", "iterations", "inlier_distance", "edge_tolerance", "normal_tolerance_deg",
+        _positive(self, "iterations", "inlier_distance", "edge_tolerance", "normal_tolerance_deg",
                   "min_inliers", "max_instances")
 
 
@@ -127,6 +137,7 @@ class PipelineConfig:
     """Every parameter of the detector; ``seed`` drives every random step."""
 
     preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
     keypoints: KeypointConfig = field(default_factory=KeypointConfig)
     features: FeatureConfig = field(default_factory=FeatureConfig)
     matching: MatchingConfig = field(default_factory=MatchingConfig)

@@ -12,7 +12,7 @@ from .config import PipelineConfig
 from .features import fpfh
 from .frame import Frame
 from .grouping import Hypothesis, ransac_instances
-from .grouping.pairs import model_pair_table, scene_pairs
+from .grouping.pairs import scene_pairs
 from .keypoints import select_keypoints
 from .matching import match_features
 from .model import ModelLibrary
@@ -73,7 +73,6 @@ class Detector:
         self.library = library
         self.config = config or PipelineConfig()
         self._trees = [cKDTree(m.features) for m in library]
-        self._tables = [model_pair_table(m.points[m.keypoints], m.normals[m.keypoints]) for m in library]
 
     def detect(self, frame: Frame, targets: dict[int, int] | None = None) -> DetectionResult:
         """Detect objects in ``frame``.
@@ -104,8 +103,8 @@ class Detector:
                 c = match_features(feats, m.features, cfg.matching, self._trees[i])
             with tm("grouping"):
                 rng = np.random.default_rng(seeds[i])
-                hyps += ransac_instances(kpts, c.model, m.points[m.keypoints], pairs, self._tables[i], m.diameter,
-                                         cfg.grouping, rng, i, m.points)
+                hyps += ransac_instances(kpts, c.model, m.kp_points, m.kp_normals, pairs, m.diameter, cfg.grouping,
+                                         rng, scene.labels[kp], i, m.points)
         stats["hypotheses"] = len(hyps)
         if len(hyps) == 0 or len(scene.points) == 0:
             return DetectionResult([], tm.t, stats)

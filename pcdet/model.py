@@ -28,7 +28,7 @@ MESH_SUFFIXES = {".ply", ".obj", ".stl", ".off", ".glb", ".gltf"}
 CLOUD_ONLY_SUFFIXES = {".pcd", ".xyz", ".xyzn", ".pts"}
 MODEL_SUFFIXES = MESH_SUFFIXES | CLOUD_ONLY_SUFFIXES
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
-CACHE_VERSION = 3
+CACHE_VERSION = 4
 # An object wider than this many "metres" is certainly in mm (table-top and warehouse objects are < 3 m).
 MM_DETECT_EXTENT = 3.0
 
@@ -42,7 +42,8 @@ class ObjectModel:
     """One object of the library, in metres, in the model file's own frame.
 
     points, normals : (N, 3) float64 surface samples (one per voxel) and outward unit normals.
-    keypoints : (K,) int64 indices into ``points``; features : (K, 33) float32 FPFH at those keypoints.
+    kp_points, kp_normals : (K, 3) keypoints and their normals as seen in rendered partial views (model frame);
+    features : (K, 33) float32 FPFH of each, computed on that view alone (as a sensor would see it).
     diameter : largest distance between two model points (m).
     vertices, faces : (V, 3) float64 m and (F, 3) int64 when the model is a mesh, else None.
     scale : factor applied to the file's coordinates to get metres.
@@ -53,7 +54,8 @@ class ObjectModel:
     path: str
     points: np.ndarray
     normals: np.ndarray
-    keypoints: np.ndarray
+    kp_points: np.ndarray
+    kp_normals: np.ndarray
     features: np.ndarray
     diameter: float
     scale: float = 1.0
@@ -77,7 +79,7 @@ def _hash_file(path: Path) -> str:
 def _model_params(cfg: PipelineConfig) -> dict:
     return {"voxel": cfg.preprocess.voxel, "normal_radius": cfg.preprocess.normal_radius,
             "normal_max_nn": cfg.preprocess.normal_max_nn, "keypoints": vars(cfg.keypoints),
-            "features": vars(cfg.features), "version": CACHE_VERSION}
+            "features": vars(cfg.features), "model": vars(cfg.model), "version": CACHE_VERSION}
 
 
 def default_cache_dir() -> Path:
@@ -178,10 +180,79 @@ def build_model(path, cfg: PipelineConfig, units="auto", obj_id: int = 0, name: 
     if len(pts) < 10:
         raise InputError(f"model has only {len(pts)} samples at voxel {pp.voxel} m: is it tiny, or in the "
                          "wrong units?", path)
-    kp = select_keypoints(pts, cfg.keypoints)
-    feats = fpfh(pts, nrm, kp, cfg.features)
-    return ObjectModel(name or path.stem, int(obj_id), str(path), pts, nrm, kp, feats, _diameter(pts), scale,
-                       verts if faces is not None else None, faces, notes)
+    diameter = _diameter(pts)
+    vv = verts if faces is not None else None
+    kpp, kpn, feats = view_features(pts, nrm, vv, faces, diameter, cfg)
+    if len(kpp) < 3:
+        raise InputError("no view of the model yields keypoints: is it flat, tiny, or in the wrong units?", path)
+    return ObjectModel(name or path.stem, int(obj_id), str(path), pts, nrm, kpp, kpn, feats, diameter, scale, vv,
+                       faces, notes)
+
+
+def view_directions(n: int) -> np.ndarray:
+    """(n, 3) unit vectors spread evenly over the sphere (Fibonacci lattice), deterministic."""
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    r = np.sqrt(1 - z ** 2)
+    a = np.pi * (1 + 5 ** 0.5) * i
+    return np.stack([r * np.cos(a), r * np.sin(a), z], axis=1)
+
+
+def view_features(points, normals, vertices, faces, diameter: float, cfg: PipelineConfig):
+    """Keypoints, normals and FPFH of the model as seen from ``cfg.model.views`` viewpoints.
+
+    For each viewpoint (on a sphere of radius ``cfg.model.view_distance`` m around the model's centre) the
+    samples that the sensor would see are kept (rendered depth agrees, normal faces the camera); normals are
+    re-estimated on that partial cloud and oriented to the camera, and FPFH is computed on it, exactly as for a
+    scene. Returns ``(kp_points (K, 3), kp_normals (K, 3), features (K, 33))`` in the model frame.
+    """
+    from .camera import Camera
+    from .render import render_meshes, render_points
+
+    pp, mc = cfg.preprocess, cfg.model
+    centre = (points.max(0) + points.min(0)) / 2
+    f = 575.0
+    cam = Camera(f, f, 159.5, 159.5, 320, 320)
+    while f * diameter / mc.view_distance > 300:  # keep the object in the image
+        f *= 0.8
+        cam = Camera(f, f, 159.5, 159.5, 320, 320)
+    out_p, out_n, out_f = [], [], []
+    for d in view_directions(mc.views):
+        eye = centre + d * mc.view_distance
+        z = -d
+        up = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        x = np.cross(up, z)
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        R = np.stack([x, y, z])  # rows: camera axes in the model frame
+        T_cam_model = np.eye(4)
+        T_cam_model[:3, :3] = R
+        T_cam_model[:3, 3] = -R @ eye
+        pc = points @ R.T + T_cam_model[:3, 3]
+        nc = normals @ R.T
+        if vertices is not None:
+            depth = render_meshes(cam, [(vertices, faces, T_cam_model)]).depth
+        else:
+            depth = render_points(cam, pc, pp.voxel)
+        uv = np.rint(cam.project(pc)).astype(np.int64)
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+        vis = np.zeros(len(pc), bool)
+        dz = depth[uv[inside, 1], uv[inside, 0]]
+        vis[inside] = (dz > 0) & (np.abs(pc[inside, 2] - dz) < pp.voxel)
+        vis &= (nc * pc).sum(axis=1) < 0  # facing the camera
+        if vis.sum() < 20:
+            continue
+        vp = pc[vis]
+        vn = estimate_normals(vp, pp.normal_radius, pp.normal_max_nn)  # toward the camera, as in a scene
+        kp = select_keypoints(vp, cfg.keypoints)
+        feats = fpfh(vp, vn, kp, cfg.features)
+        Rt = R.T
+        out_p.append((vp[kp] - T_cam_model[:3, 3]) @ R)
+        out_n.append(vn[kp] @ Rt.T)
+        out_f.append(feats)
+    if not out_p:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 33), np.float32)
+    return np.concatenate(out_p), np.concatenate(out_n), np.concatenate(out_f)
 
 
 def _outward_normals(pts: np.ndarray, radius: float, max_nn: int) -> np.ndarray:
@@ -202,7 +273,7 @@ def _outward_normals(pts: np.ndarray, radius: float, max_nn: int) -> np.ndarray:
 def _save(model: ObjectModel, path: Path) -> None:
     buf = io.BytesIO()
     meta = {k: getattr(model, k) for k in ("name", "obj_id", "path", "diameter", "scale", "notes")}
-    arrays = {k: getattr(model, k) for k in ("points", "normals", "keypoints", "features")}
+    arrays = {k: getattr(model, k) for k in ("points", "normals", "kp_points", "kp_normals", "features")}
     if model.is_mesh:
         arrays.update(vertices=model.vertices, faces=model.faces)
     np.savez(buf, meta=np.array(json.dumps(meta)), **arrays)

@@ -39,7 +39,7 @@ def preprocess(frame: Frame, cfg: PreprocessConfig, seed: int = 0) -> SceneCloud
     if len(pts) == 0:
         raise InputError(f"no point between min_depth {cfg.min_depth} m and max_depth {cfg.max_depth} m "
                          f"(depths span {z.min():.3f}..{z.max():.3f} m): wrong depth units?", src)
-    pts, _, _ = voxel_downsample(pts, cfg.voxel)
+    pts, _, _ = voxel_downsample(pts, cfg.voxel, representatives=False)
     plane = None
     if cfg.remove_plane:
         plane = segment_plane(pts, cfg.plane_distance, cfg.plane_iterations, rng=seed)

@@ -24,11 +24,6 @@ def pair_features(p1, n1, p2, n2) -> np.ndarray:
     return f.astype(np.float32)
 
 
-def model_pair_table(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """(K, K, 4) float32 features of every ordered pair of K model keypoints (points, normals (K, 3))."""
-    return pair_features(points[:, None], normals[:, None], points[None, :], normals[None, :])
-
-
 @dataclass
 class ScenePairs:
     """Unordered pairs (a < b) of scene keypoints closer than ``radius`` and in the same cluster, with their
@@ -51,8 +46,3 @@ def scene_pairs(points, normals, labels, radius: float) -> ScenePairs:
     a, b = a[keep], b[keep]
     return ScenePairs(a, b, pair_features(points[a], normals[a], points[b], normals[b]))
 
-
-def compatible(fs: np.ndarray, fm: np.ndarray, length_tol: float, angle_tol: float, min_length: float) -> np.ndarray:
-    """(P,) bool: scene features ``fs`` and model features ``fm`` (P, 4) agree."""
-    return ((np.abs(fs[:, 0] - fm[:, 0]) < length_tol) & (fs[:, 0] > min_length)
-            & (np.abs(fs[:, 1:] - fm[:, 1:]) < angle_tol).all(axis=1))

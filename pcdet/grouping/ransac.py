@@ -16,29 +16,38 @@ from scipy.spatial import cKDTree
 from ..align import kabsch, kabsch_batch, transform
 from ..config import GroupingConfig
 from .hypothesis import Hypothesis
-from .pairs import ScenePairs, compatible
+from .pairs import ScenePairs, pair_features
 
 
-def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, table: np.ndarray, diameter: float,
-                        cfg: GroupingConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarray, model_nrm: np.ndarray,
+                        diameter: float, cfg: GroupingConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """CSR ``(start, deg, nbr)`` over correspondences ``c = s * k + r`` (scene keypoint s, r-th candidate).
 
     cand : (S, k) int64 model keypoint of each candidate, -1 where there is none.
-    table : (K, K, 4) model pair features.
+    model_pts, model_nrm : (K, 3) model keypoints and normals.
     """
     S, k = cand.shape
     M = S * k
-    near = pairs.features[:, 0] < diameter
+    f0 = pairs.features[:, 0]
+    near = (f0 < diameter + cfg.edge_tolerance) & (f0 > 0.1 * diameter)
     a, b, fs = pairs.a[near], pairs.b[near], pairs.features[near]
-    r1, r2 = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
-    r1, r2 = r1.reshape(-1), r2.reshape(-1)
+    flat = cand.reshape(-1)
+    # expand each scene pair into its k x k candidate pairs, testing the cheap length first
+    r1, r2 = np.divmod(np.arange(k * k), k)
     ca = (a[:, None] * k + r1).reshape(-1)
     cb = (b[:, None] * k + r2).reshape(-1)
-    ma, mb = cand.reshape(-1)[ca], cand.reshape(-1)[cb]
-    fsx = np.repeat(fs, k * k, axis=0)
+    pi = np.repeat(np.arange(len(a)), k * k)
+    ma, mb = flat[ca], flat[cb]
     ok = (ma >= 0) & (mb >= 0) & (ma != mb)
-    ok[ok] = compatible(fsx[ok], table[ma[ok], mb[ok]], cfg.edge_tolerance,
-                        np.radians(cfg.normal_tolerance_deg), 0.1 * diameter)
+    ca, cb, pi, ma, mb = ca[ok], cb[ok], pi[ok], ma[ok], mb[ok]
+    lm = np.linalg.norm(model_pts[mb] - model_pts[ma], axis=1)
+    ok = np.abs(fs[pi, 0] - lm) < cfg.edge_tolerance
+    ca, cb, pi, ma, mb = ca[ok], cb[ok], pi[ok], ma[ok], mb[ok]
+    fm = pair_features(model_pts[ma], model_nrm[ma], model_pts[mb], model_nrm[mb])
+    tol = np.radians(cfg.normal_tolerance_deg)
+    ok = np.abs(fs[pi, 1] - fm[:, 1]) < tol
+    ok &= np.abs(fs[pi, 2] - fm[:, 2]) < tol
+    ok &= np.abs(fs[pi, 3] - fm[:, 3]) < tol
     ca, cb = ca[ok], cb[ok]
     src = np.concatenate([ca, cb])
     dst = np.concatenate([cb, ca])
@@ -49,74 +58,87 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, table: np.ndarray, 
     return start, deg, dst.astype(np.int64)
 
 
-def ransac_instances(scene_pts: np.ndarray, cand: np.ndarray, model_pts: np.ndarray, pairs: ScenePairs,
-                     table: np.ndarray, diameter: float, cfg: GroupingConfig, rng: np.random.Generator,
-                     model_index: int = 0, model_cloud: np.ndarray | None = None) -> list[Hypothesis]:
-    """Hypotheses for up to ``cfg.max_instances`` instances of one model.
+def ransac_instances(scene_pts: np.ndarray, cand: np.ndarray, model_pts: np.ndarray, model_nrm: np.ndarray,
+                     pairs: ScenePairs, diameter: float, cfg: GroupingConfig, rng: np.random.Generator,
+                     scene_labels: np.ndarray | None = None, model_index: int = 0,
+                     model_cloud: np.ndarray | None = None) -> list[Hypothesis]:
+    """Hypotheses for up to ``cfg.max_instances`` instances of one model in each scene cluster.
 
     Parameters
     ----------
     scene_pts : (S, 3) scene keypoints (m).  cand : (S, k) candidate model keypoint indices (-1: none).
-    model_pts : (K, 3) model keypoints (m).  pairs, table : scene pairs and model pair-feature table.
-    diameter : model diameter (m).  model_cloud : (P, 3) model samples used to clear an explained surface.
+    model_pts, model_nrm : (K, 3) model keypoints (m) and normals.  pairs : scene keypoint pairs.
+    diameter : model diameter (m).  scene_labels : (S,) cluster of each keypoint (None: one cluster).
+    model_cloud : (P, 3) model samples used to clear the surface a found instance explains.
 
-    Each hypothesis's ``inliers`` are correspondence indices ``s * k + r``.
+    Each hypothesis's ``inliers`` are correspondence indices ``s * k + r``. Clusters are searched in label
+    order, so the result does not depend on anything but the inputs and ``rng``.
     """
     S, k = cand.shape
-    M = S * k
     out: list[Hypothesis] = []
-    if M < 3:
+    if S * k < 3:
         return out
-    start, deg, nbr = compatibility_graph(pairs, cand, table, diameter, cfg)
+    start, deg, nbr = compatibility_graph(pairs, cand, model_pts, model_nrm, diameter, cfg)
     cs = np.repeat(scene_pts, k, axis=0)  # scene point of each correspondence
     cm = model_pts[np.maximum(cand.reshape(-1), 0)]  # model point of each correspondence
-    valid = cand.reshape(-1) >= 0
-    active = valid & (deg >= 2)
-    for _ in range(cfg.max_instances):
-        pool = np.flatnonzero(active)
-        if len(pool) == 0:
-            break
-        i0 = pool[rng.integers(0, len(pool), cfg.iterations)]
-        d0 = deg[i0]
-        j = nbr[start[i0] + (rng.random(len(i0)) * d0).astype(np.int64)]
-        kk = nbr[start[i0] + (rng.random(len(i0)) * d0).astype(np.int64)]
-        ok = active[j] & active[kk] & (j != kk) & (j // k != kk // k)
-        tri = np.stack([i0, j, kk], axis=1)[ok]
-        if len(tri) == 0:
-            break
-        Sx, Px = cs[tri], cm[tri]
-        ds = np.linalg.norm(Sx[:, 1] - Sx[:, 2], axis=1)
-        dm = np.linalg.norm(Px[:, 1] - Px[:, 2], axis=1)
-        good = (np.abs(ds - dm) < cfg.edge_tolerance) & (ds > 0.1 * diameter)
-        tri, Sx, Px = tri[good], Sx[good], Px[good]
-        if len(tri) == 0:
-            break
-        T = kabsch_batch(Px, Sx)
-        cnt = deg[tri[:, 0]]
-        rows = np.repeat(np.arange(len(tri)), cnt)
-        cols = nbr[np.repeat(start[tri[:, 0]], cnt) + _ramp(cnt)]
-        pred = np.einsum("nij,nj->ni", T[rows, :3, :3], cm[cols]) + T[rows, :3, 3]
-        hit = active[cols] & (np.linalg.norm(pred - cs[cols], axis=1) < cfg.inlier_distance)
-        # count distinct scene keypoints explained, not candidates (k candidates of one point may all fit)
-        key = np.unique(rows[hit] * S + cols[hit] // k)
-        score = np.bincount(key // S, minlength=len(tri))
-        best = int(np.argmax(score))  # first maximum: deterministic
-        Tb = T[best]
-        inl = np.zeros(0, np.int64)
-        for _ in range(3):  # refit on all active inliers
-            inl = np.flatnonzero(active & (np.linalg.norm(transform(Tb, cm) - cs, axis=1) < cfg.inlier_distance))
-            if len(inl) < 3:
+    active = (cand.reshape(-1) >= 0) & (deg >= 2)
+    labels = np.zeros(S, np.int64) if scene_labels is None else np.asarray(scene_labels)
+    clabel = np.repeat(labels, k)
+    for lab in np.unique(labels[active.reshape(S, k).any(axis=1)]):
+        for _ in range(cfg.max_instances):
+            h = _one_instance(cs, cm, k, start, deg, nbr, active & (clabel == lab), diameter, cfg, rng)
+            if h is None:
                 break
-            Tb = kabsch(cm[inl], cs[inl])
-        n_pts = len(np.unique(inl // k))
-        if n_pts < cfg.min_inliers:
-            break
-        out.append(Hypothesis(model_index, Tb, inl))
-        active[inl] = False
-        if model_cloud is not None:  # clear the surface this instance explains
-            d, _ = cKDTree(transform(Tb, model_cloud)).query(scene_pts, distance_upper_bound=2 * cfg.inlier_distance)
-            active &= ~np.repeat(np.isfinite(d), k)
+            Tb, inl = h
+            out.append(Hypothesis(model_index, Tb, inl))
+            active[inl] = False
+            if model_cloud is not None:  # clear the surface this instance explains
+                d, _ = cKDTree(transform(Tb, model_cloud)).query(scene_pts, distance_upper_bound=2 * cfg.inlier_distance)
+                active &= ~np.repeat(np.isfinite(d), k)
     return out
+
+
+def _one_instance(cs, cm, k, start, deg, nbr, active, diameter, cfg, rng):
+    """The best triplet hypothesis among ``active`` correspondences, refit on its inliers, or None."""
+    pool = np.flatnonzero(active)
+    if len(pool) < 3:
+        return None
+    i0 = pool[rng.integers(0, len(pool), cfg.iterations)]
+    d0 = deg[i0]
+    j = nbr[start[i0] + (rng.random(len(i0)) * d0).astype(np.int64)]
+    kk = nbr[start[i0] + (rng.random(len(i0)) * d0).astype(np.int64)]
+    ok = active[j] & active[kk] & (j != kk) & (j // k != kk // k)
+    tri = np.stack([i0, j, kk], axis=1)[ok]
+    if len(tri) == 0:
+        return None
+    Sx, Px = cs[tri], cm[tri]
+    ds = np.linalg.norm(Sx[:, 1] - Sx[:, 2], axis=1)
+    dm = np.linalg.norm(Px[:, 1] - Px[:, 2], axis=1)
+    good = (np.abs(ds - dm) < cfg.edge_tolerance) & (ds > 0.1 * diameter)
+    tri, Sx, Px = tri[good], Sx[good], Px[good]
+    if len(tri) == 0:
+        return None
+    T = kabsch_batch(Px, Sx)
+    # score: distinct scene keypoints among the seed's compatible partners that the pose explains
+    cnt = deg[tri[:, 0]]
+    rows = np.repeat(np.arange(len(tri)), cnt)
+    cols = nbr[np.repeat(start[tri[:, 0]], cnt) + _ramp(cnt)]
+    pred = np.einsum("nij,nj->ni", T[rows, :3, :3], cm[cols]) + T[rows, :3, 3]
+    hit = active[cols] & (np.linalg.norm(pred - cs[cols], axis=1) < cfg.inlier_distance)
+    n_s = len(cs) // k
+    key = np.unique(rows[hit] * n_s + cols[hit] // k)
+    score = np.bincount(key // n_s, minlength=len(tri))
+    best = int(np.argmax(score))  # first maximum: deterministic
+    Tb = T[best]
+    inl = np.zeros(0, np.int64)
+    for _ in range(3):  # refit on all active inliers
+        inl = np.flatnonzero(active & (np.linalg.norm(transform(Tb, cm) - cs, axis=1) < cfg.inlier_distance))
+        if len(inl) < 3:
+            return None
+        Tb = kabsch(cm[inl], cs[inl])
+    if len(np.unique(inl // k)) < cfg.min_inliers:
+        return None
+    return Tb, inl
 
 
 def _ramp(counts: np.ndarray) -> np.ndarray:

@@ -1,0 +1,165 @@
+"""Pose-error functions and BOP-style scoring. Every metric is a pure function.
+
+Notation: model points X (N, 3) in metres, estimated pose (R_e, t_e), ground truth (R_g, t_g), both
+``T_cam_model``. Definitions follow Hodan et al., "On Evaluation of 6D Object Pose Estimation" (ECCVW 2016)
+and the BOP challenge (2019-2023).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+MSSD_THRESHOLDS = np.arange(0.05, 0.51, 0.05)  # x object diameter
+MSPD_THRESHOLDS_PX = np.arange(5, 51, 5)  # x image width / 640
+
+
+def _apply(T: np.ndarray, X: np.ndarray) -> np.ndarray:
+    return X @ T[:3, :3].T + T[:3, 3]
+
+
+def add(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray) -> float:
+    """ADD (Hinterstoisser 2012): mean over model points x of ||T_est x - T_gt x|| (m)."""
+    return float(np.linalg.norm(_apply(T_est, points) - _apply(T_gt, points), axis=1).mean())
+
+
+def adds(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray) -> float:
+    """ADD-S: mean over model points x of min over y of ||T_est x - T_gt y|| (m); for symmetric objects."""
+    d, _ = cKDTree(_apply(T_gt, points)).query(_apply(T_est, points))
+    return float(d.mean())
+
+
+def mssd(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray, symmetries: list[np.ndarray] | None = None) -> float:
+    """MSSD (BOP): min over symmetry transforms S of max over x of ||T_est x - T_gt S x|| (m).
+    ``symmetries`` are (4, 4) model-frame transforms; the identity is always included."""
+    syms = [np.eye(4)] + list(symmetries or [])
+    pe = _apply(T_est, points)
+    return float(min(np.linalg.norm(pe - _apply(T_gt @ S, points), axis=1).max() for S in syms))
+
+
+def mspd(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray, K: np.ndarray,
+         symmetries: list[np.ndarray] | None = None) -> float:
+    """MSPD (BOP): min over symmetries of max over x of ||proj(T_est x) - proj(T_gt S x)|| (pixels), with the
+    pinhole projection by K (3, 3)."""
+    def proj(T):
+        p = _apply(T, points) @ K.T
+        return p[:, :2] / p[:, 2:3]
+
+    syms = [np.eye(4)] + list(symmetries or [])
+    pe = proj(T_est)
+    return float(min(np.linalg.norm(pe - proj(T_gt @ S), axis=1).max() for S in syms))
+
+
+def rotation_error_deg(R_est: np.ndarray, R_gt: np.ndarray) -> float:
+    """Angle (degrees) of R_est R_gt^T."""
+    c = (np.trace(R_est[:3, :3] @ R_gt[:3, :3].T) - 1) / 2
+    return float(np.degrees(np.arccos(np.clip(c, -1, 1))))
+
+
+def translation_error(t_est: np.ndarray, t_gt: np.ndarray) -> float:
+    """||t_est - t_gt|| (same units as the inputs)."""
+    return float(np.linalg.norm(np.asarray(t_est) - np.asarray(t_gt)))
+
+
+@dataclass
+class InstanceErrors:
+    """Errors of the estimate matched to one ground-truth instance (None where no estimate matched)."""
+
+    scene_id: int
+    im_id: int
+    obj_id: int
+    visib_fract: float | None
+    score: float | None
+    add: float | None
+    adds: float | None
+    mssd: float | None
+    mspd: float | None
+
+
+def match_image(gts: list[dict], ests: list[dict], points: dict[int, np.ndarray], K: np.ndarray,
+                image_width: int = 640, symmetries: dict[int, list[np.ndarray]] | None = None,
+                scene_id: int = 0, im_id: int = 0) -> tuple[list[InstanceErrors], int]:
+    """Match estimates to ground-truth instances of one image, per object, greedily by score (BOP style:
+    each estimate, best score first, takes the unmatched instance with the lowest MSSD if that MSSD is within
+    the loosest MSSD threshold).
+
+    gts : [{"obj_id", "T_cam_model", "visib_fract"}]; ests : [{"obj_id", "score", "T_cam_model"}];
+    points : {obj_id: (N, 3) model points, m}. Returns the per-instance errors and the number of estimates
+    that matched no instance (false positives).
+    """
+    symmetries = symmetries or {}
+    out: list[InstanceErrors] = []
+    false_pos = 0
+    for oid in sorted({g["obj_id"] for g in gts} | {e["obj_id"] for e in ests}):
+        g_o = [g for g in gts if g["obj_id"] == oid]
+        e_o = sorted([e for e in ests if e["obj_id"] == oid], key=lambda e: -e["score"])
+        if oid not in points:
+            false_pos += len(e_o)
+            continue
+        X = points[oid]
+        diam = _diameter(X)
+        taken: dict[int, dict] = {}
+        for e in e_o:
+            best, best_err = None, None
+            for gi, g in enumerate(g_o):
+                if gi in taken:
+                    continue
+                err = mssd(e["T_cam_model"], g["T_cam_model"], X, symmetries.get(oid))
+                if best_err is None or err < best_err:
+                    best, best_err = gi, err
+            if best is not None and best_err <= MSSD_THRESHOLDS[-1] * diam:
+                taken[best] = e
+            else:
+                false_pos += 1
+        for gi, g in enumerate(g_o):
+            e = taken.get(gi)
+            if e is None:
+                out.append(InstanceErrors(scene_id, im_id, oid, g.get("visib_fract"), None, None, None, None, None))
+                continue
+            Te, Tg = e["T_cam_model"], g["T_cam_model"]
+            out.append(InstanceErrors(scene_id, im_id, oid, g.get("visib_fract"), e["score"], add(Te, Tg, X),
+                                      adds(Te, Tg, X), mssd(Te, Tg, X, symmetries.get(oid)),
+                                      mspd(Te, Tg, X, K, symmetries.get(oid))))
+    return out, false_pos
+
+
+_DIAM_CACHE: dict[int, float] = {}
+
+
+def _diameter(X: np.ndarray) -> float:
+    key = id(X)
+    if key not in _DIAM_CACHE:
+        from scipy.spatial import ConvexHull
+
+        h = X[ConvexHull(X).vertices]
+        _DIAM_CACHE[key] = float(np.sqrt(((h[:, None] - h[None]) ** 2).sum(-1).max()))
+    return _DIAM_CACHE[key]
+
+
+def summarize(errors: list[InstanceErrors], diameters: dict[int, float], false_pos: int,
+              image_width: int = 640, add_threshold: float = 0.1) -> dict:
+    """Recall and BOP average recall over a set of matched instances.
+
+    recall_add / recall_adds: share of instances with ADD / ADD-S < ``add_threshold`` x diameter.
+    ar_mssd: mean over MSSD thresholds 0.05..0.5 x diameter of the recall; ar_mspd: mean over 5..50 px
+    (scaled by image_width / 640); ar = (ar_mssd + ar_mspd) / 2 (BOP's AR without VSD).
+    precision_adds: estimates within the ADD-S threshold over all estimates (matched + false positives).
+    """
+    n = len(errors)
+    if n == 0:
+        return {"instances": 0}
+
+    def share(vals):
+        return float(np.mean(vals)) if vals else 0.0
+
+    ok_add = [e.add is not None and e.add < add_threshold * diameters[e.obj_id] for e in errors]
+    ok_adds = [e.adds is not None and e.adds < add_threshold * diameters[e.obj_id] for e in errors]
+    ar_mssd = np.mean([share([e.mssd is not None and e.mssd < t * diameters[e.obj_id] for e in errors])
+                       for t in MSSD_THRESHOLDS])
+    ar_mspd = np.mean([share([e.mspd is not None and e.mspd < t * image_width / 640 for e in errors])
+                       for t in MSPD_THRESHOLDS_PX])
+    n_est = sum(e.score is not None for e in errors) + false_pos
+    return {"instances": n, "estimates": n_est, "recall_add": share(ok_add), "recall_adds": share(ok_adds),
+            "precision_adds": (sum(ok_adds) / n_est) if n_est else 0.0,
+            "ar_mssd": float(ar_mssd), "ar_mspd": float(ar_mspd), "ar": float((ar_mssd + ar_mspd) / 2)}
