@@ -80,7 +80,7 @@ class FeatureConfig:
 
 @dataclass(frozen=True)
 class MatchingConfig:
-    k: int = 5
+    k: int = 3
     ratio: float = 1.0
     mutual: bool = False
 
@@ -93,18 +93,21 @@ class MatchingConfig:
 @dataclass(frozen=True)
 class GroupingConfig:
     method: str = "ransac"
-    iterations: int = 400
+    iterations: int = 800
     inlier_distance: float = 0.01
     edge_tolerance: float = 0.006
     normal_tolerance_deg: float = 20.0
     min_inliers: int = 5
     max_instances: int = 2
+    alternatives: int = 3
 
     def __post_init__(self):
         if self.method not in ("ransac",):
             raise ValueError(f"GroupingConfig.method {self.method!r} is not available; choose 'ransac'")
         _positive(self, "iterations", "inlier_distance", "edge_tolerance", "normal_tolerance_deg",
                   "min_inliers", "max_instances")
+        if self.alternatives < 0:
+            raise ValueError(f"GroupingConfig.alternatives must be >= 0, got {self.alternatives}")
 
 
 @dataclass(frozen=True)
@@ -124,10 +127,12 @@ class VerifyConfig:
     min_supported: int = 40
     max_violation: float = 0.25
     conflict_overlap: float = 0.3
+    prefilter: float = 0.15
+    max_penetration: float = 0.05
 
     def __post_init__(self):
         _positive(self, "depth_tolerance", "min_supported")
-        for n in ("min_score", "max_violation", "conflict_overlap"):
+        for n in ("min_score", "max_violation", "conflict_overlap", "prefilter", "max_penetration"):
             if not 0 <= getattr(self, n) <= 1:
                 raise ValueError(f"VerifyConfig.{n} must be in [0, 1], got {getattr(self, n)}")
 
@@ -200,15 +205,64 @@ def load_pipeline(name_or_path: str | Path | None = None) -> PipelineConfig:
     return PipelineConfig.from_dict(data, source=str(p))
 
 
-def dump_toml(cfg: PipelineConfig) -> str:
-    """The config as TOML text (sections in pipeline order)."""
-    lines = [f"seed = {cfg.seed}", ""]
+FIELD_DOCS = {
+    "seed": "seed of every random step (plane RANSAC, grouping); same input + config + seed = same output",
+    "preprocess.min_depth": "m; scene points nearer than this are dropped",
+    "preprocess.max_depth": "m; scene points farther than this are dropped",
+    "preprocess.voxel": "m; voxel grid of the scene and of model samples",
+    "preprocess.normal_radius": "m; neighbourhood for normals (scene, model views)",
+    "preprocess.normal_max_nn": "most neighbours used for a normal",
+    "preprocess.remove_plane": "remove the dominant plane (table, floor) and what lies beyond it",
+    "preprocess.plane_distance": "m; points this close to the plane belong to it",
+    "preprocess.plane_iterations": "RANSAC draws for the plane",
+    "preprocess.cluster_tolerance": "m; points closer than this join one Euclidean cluster",
+    "preprocess.min_cluster_points": "clusters with fewer points are dropped as clutter",
+    "model.views": "rendered partial views per model for its descriptors",
+    "model.view_distance": "m; distance of those virtual cameras from the model",
+    "keypoints.method": "'voxel' (one sample per cell of `spacing`) or 'iss'",
+    "keypoints.spacing": "m; keypoint spacing for the voxel method",
+    "keypoints.iss_salient_radius": "m; ISS salient radius",
+    "keypoints.iss_non_max_radius": "m; ISS non-maximum suppression radius",
+    "features.radius": "m; FPFH support radius",
+    "features.max_nn": "most neighbours in an FPFH",
+    "matching.k": "candidate model keypoints kept per scene keypoint (nearest in FPFH space)",
+    "matching.ratio": "Lowe ratio test on the nearest two (1.0: off, keep k)",
+    "matching.mutual": "keep only mutual nearest neighbours",
+    "grouping.method": "correspondence grouping: 'ransac'",
+    "grouping.iterations": "triplets drawn per cluster and instance round",
+    "grouping.inlier_distance": "m; a correspondence within this of the posed model point is an inlier",
+    "grouping.edge_tolerance": "m; pair-length difference allowed between scene and model pairs",
+    "grouping.normal_tolerance_deg": "degrees; pair-angle difference allowed (point-pair features)",
+    "grouping.min_inliers": "distinct scene keypoints a hypothesis needs",
+    "grouping.max_instances": "instances of one model searched per cluster",
+    "grouping.alternatives": "extra distinct poses kept per round for verification to choose from",
+    "refine.iterations": "ICP iterations at most",
+    "refine.max_distance": "m; ICP correspondence distance",
+    "refine.kernel": "m; Tukey kernel width of the point-to-plane residual",
+    "verify.depth_tolerance": "m; rendered vs measured depth agreement",
+    "verify.min_score": "acceptance threshold on the verification score",
+    "verify.min_supported": "pixels that must agree with the model",
+    "verify.max_violation": "share of see-through pixels allowed",
+    "verify.conflict_overlap": "share of a detection's pixels that may be claimed by a better one",
+    "verify.prefilter": "score a raw hypothesis needs before ICP",
+    "verify.max_penetration": "share of model samples allowed below the supporting plane",
+}
+
+
+def dump_toml(cfg: PipelineConfig, comments: bool = True) -> str:
+    """The config as TOML text (sections in pipeline order), each parameter with a one-line comment."""
+
+    def line(key, value, doc_key):
+        doc = FIELD_DOCS.get(doc_key) if comments else None
+        return f"{key} = {_toml_value(value)}" + (f"  # {doc}" if doc else "")
+
+    lines = [line("seed", cfg.seed, "seed"), ""]
     for f in dataclasses.fields(cfg):
         if f.name == "seed":
             continue
         lines.append(f"[{f.name}]")
         for k, v in dataclasses.asdict(getattr(cfg, f.name)).items():
-            lines.append(f"{k} = {_toml_value(v)}")
+            lines.append(line(k, v, f"{f.name}.{k}"))
         lines.append("")
     return "\n".join(lines)
 

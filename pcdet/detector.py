@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .cloud import voxel_downsample
 from .config import PipelineConfig
 from .features import fpfh
 from .frame import Frame
@@ -73,6 +74,11 @@ class Detector:
         self.library = library
         self.config = config or PipelineConfig()
         self._trees = [cKDTree(m.features) for m in library]
+        # ICP needs far fewer points than verification: a grid of twice the scene voxel keeps the shape
+        self._icp_pts = []
+        for m in library:
+            p, n, _ = voxel_downsample(m.points, 2 * self.config.preprocess.voxel, m.normals, representatives=False)
+            self._icp_pts.append((p, n))
 
     def detect(self, frame: Frame, targets: dict[int, int] | None = None) -> DetectionResult:
         """Detect objects in ``frame``.
@@ -108,13 +114,20 @@ class Detector:
         stats["hypotheses"] = len(hyps)
         if len(hyps) == 0 or len(scene.points) == 0:
             return DetectionResult([], tm.t, stats)
+        with tm("verify"):
+            # cheap first look at the raw poses: only plausible ones are worth an ICP
+            pre = [verify(self.library[h.model_index], h.T_cam_model, frame.depth, frame.camera, cfg.verify,
+                          cfg.preprocess.voxel, scene.plane) for h in hyps]
+        keep = [j for j, v in enumerate(pre) if v.score >= cfg.verify.prefilter and v.n_supported > 0]
+        hyps = [hyps[j] for j in keep]
+        stats["refined"] = len(hyps)
         with tm("refine"):
             tree = cKDTree(scene.points)
-            regs = [icp(self.library[h.model_index].points, scene.points, scene.normals, h.T_cam_model, cfg.refine,
-                        self.library[h.model_index].normals, tree, np.zeros(3)) for h in hyps]
+            regs = [icp(self._icp_pts[h.model_index][0], scene.points, scene.normals, h.T_cam_model, cfg.refine,
+                        self._icp_pts[h.model_index][1], tree, np.zeros(3)) for h in hyps]
         with tm("verify"):
             vers: list[Verification] = [verify(self.library[h.model_index], r.T_target_source, frame.depth,
-                                               frame.camera, cfg.verify, cfg.preprocess.voxel)
+                                               frame.camera, cfg.verify, cfg.preprocess.voxel, scene.plane)
                                         for h, r in zip(hyps, regs)]
             order = sorted(range(len(hyps)), key=lambda j: (-vers[j].score, j))
             if targets is None:

@@ -144,21 +144,45 @@ def _diameter(points: np.ndarray) -> float:
     return float(np.sqrt(d2.max()))
 
 
-def build_model(path, cfg: PipelineConfig, units="auto", obj_id: int = 0, name: str | None = None,
-                seed: int = 0) -> ObjectModel:
-    """Load one model file and compute its samples, normals, keypoints and FPFH (no cache)."""
+@dataclass
+class Geometry:
+    """A model file's geometry in metres: vertices (V, 3), faces (F, 3) or None (point cloud), per-vertex
+    normals (V, 3) or None, the scale applied to the file's numbers, and notes about units."""
+
+    vertices: np.ndarray
+    faces: np.ndarray | None
+    normals: np.ndarray | None
+    scale: float
+    notes: list[str]
+
+
+def load_geometry(path, units="auto") -> Geometry:
+    """Read a mesh or point-cloud model file, validate it and convert it to metres."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: model file not found")
     if path.suffix.lower() not in MODEL_SUFFIXES:
         raise InputError(f"unknown model format {path.suffix!r}; expected one of {sorted(MODEL_SUFFIXES)}", path)
     verts, faces, vnormals = _read_geometry(path)
-    verts = verts[np.isfinite(verts).all(axis=1)] if faces is None else verts
+    if faces is None:
+        fin = np.isfinite(verts).all(axis=1)
+        verts = verts[fin]
+        vnormals = vnormals[fin] if vnormals is not None else None
+    elif not np.isfinite(verts).all():
+        raise InputError("mesh has non-finite vertex coordinates", path)
     if len(verts) < 3:
         raise InputError(f"model has {len(verts)} points; at least 3 are needed", path)
     notes: list[str] = []
     scale = _resolve_scale(verts, units, path, notes)
-    verts = verts * scale
+    return Geometry(verts * scale, faces, vnormals, scale, notes)
+
+
+def build_model(path, cfg: PipelineConfig, units="auto", obj_id: int = 0, name: str | None = None,
+                seed: int = 0) -> ObjectModel:
+    """Load one model file and compute its samples, normals, keypoints and FPFH (no cache)."""
+    path = Path(path)
+    g = load_geometry(path, units)
+    verts, faces, vnormals, scale, notes = g.vertices, g.faces, g.normals, g.scale, g.notes
     pp = cfg.preprocess
     if faces is not None:
         import trimesh

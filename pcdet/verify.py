@@ -7,6 +7,8 @@ rendered depth r (tolerance tau):
   occluded   d < r - tau          something in front hides the model there (no evidence either way);
   violation  d > r + tau          the sensor sees through where the model's surface would be;
   unknown    d == 0               no measurement.
+When the scene's supporting plane is known, model samples more than tau below it are physically impossible
+(an object cannot sink into its support); their share multiplies the score down.
 """
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import Camera
+from .cloud import Plane
 from .config import VerifyConfig
 from .model import ObjectModel
 from .render import render_meshes, render_points
@@ -22,8 +25,9 @@ from .render import render_meshes, render_points
 
 @dataclass
 class Verification:
-    """score = supported / (supported + violations + occluded / 2), in [0, 1];
-    fitness = supported / (supported + violations); visible_fraction = supported / rendered pixels.
+    """score = supported / (supported + violations + occluded / 2) x (1 - penetration)^2, in [0, 1];
+    fitness = supported / (supported + violations); visible_fraction = supported / rendered pixels;
+    penetration = share of model samples below the supporting plane (0 without a plane).
     support : (S,) flat pixel indices of the supported pixels (what this hypothesis claims)."""
 
     score: float
@@ -33,11 +37,13 @@ class Verification:
     n_supported: int
     n_occluded: int
     n_violations: int
+    penetration: float
     support: np.ndarray
 
     def accepted(self, cfg: VerifyConfig) -> bool:
         return (self.n_supported >= cfg.min_supported and self.score >= cfg.min_score
-                and self.n_violations <= cfg.max_violation * max(self.n_supported + self.n_violations, 1))
+                and self.n_violations <= cfg.max_violation * max(self.n_supported + self.n_violations, 1)
+                and self.penetration <= cfg.max_penetration)
 
 
 def _bbox_pixels(camera: Camera, pts_cam: np.ndarray) -> np.ndarray | None:
@@ -67,8 +73,9 @@ def render_model(model: ObjectModel, T_cam_model: np.ndarray, camera: Camera, sp
 
 
 def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camera: Camera, cfg: VerifyConfig,
-           spacing: float = 0.004) -> Verification:
-    """Compare ``model`` rendered at ``T_cam_model`` with measured ``depth`` (H, W) float32 metres."""
+           spacing: float = 0.004, plane: Plane | None = None) -> Verification:
+    """Compare ``model`` rendered at ``T_cam_model`` with measured ``depth`` (H, W) float32 metres; with the
+    scene's supporting ``plane``, also measure how much of the model would sink into it."""
     r = render_model(model, T_cam_model, camera, spacing).reshape(-1)
     d = depth.reshape(-1)
     pix = np.flatnonzero(r > 0)
@@ -79,8 +86,12 @@ def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camer
     occ = known & (dv < rv - tau)
     vio = known & (dv > rv + tau)
     ns, no, nv = int(sup.sum()), int(occ.sum()), int(vio.sum())
-    score = ns / max(ns + nv + 0.5 * no, 1.0)
-    return Verification(score, ns / max(ns + nv, 1), ns / max(len(pix), 1), len(pix), ns, no, nv, pix[sup])
+    pen = 0.0
+    if plane is not None:
+        P = model.points @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+        pen = float(np.mean(P @ plane.normal + plane.offset < -tau))
+    score = ns / max(ns + nv + 0.5 * no, 1.0) * (1.0 - pen) ** 2
+    return Verification(score, ns / max(ns + nv, 1), ns / max(len(pix), 1), len(pix), ns, no, nv, pen, pix[sup])
 
 
 def resolve_conflicts(order: list[int], supports: list[np.ndarray], max_overlap: float, n_pixels: int) -> list[int]:

@@ -86,23 +86,25 @@ def ransac_instances(scene_pts: np.ndarray, cand: np.ndarray, model_pts: np.ndar
     clabel = np.repeat(labels, k)
     for lab in np.unique(labels[active.reshape(S, k).any(axis=1)]):
         for _ in range(cfg.max_instances):
-            h = _one_instance(cs, cm, k, start, deg, nbr, active & (clabel == lab), diameter, cfg, rng)
-            if h is None:
+            found = _one_instance(cs, cm, k, start, deg, nbr, active & (clabel == lab), diameter, cfg, rng)
+            if not found:
                 break
-            Tb, inl = h
-            out.append(Hypothesis(model_index, Tb, inl))
+            out += [Hypothesis(model_index, T, inl) for T, inl in found]
+            Tb, inl = found[0]
             active[inl] = False
-            if model_cloud is not None:  # clear the surface this instance explains
+            if model_cloud is not None:  # clear the surface the best pose explains
                 d, _ = cKDTree(transform(Tb, model_cloud)).query(scene_pts, distance_upper_bound=2 * cfg.inlier_distance)
                 active &= ~np.repeat(np.isfinite(d), k)
     return out
 
 
-def _one_instance(cs, cm, k, start, deg, nbr, active, diameter, cfg, rng):
-    """The best triplet hypothesis among ``active`` correspondences, refit on its inliers, or None."""
+def _one_instance(cs, cm, k, start, deg, nbr, active, diameter, cfg, rng) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The best triplet poses among ``active`` correspondences, each refit on its inliers: the best first,
+    then up to ``cfg.alternatives`` others that differ from every pose before them (rotation > 10 degrees or
+    translation > a fifth of the diameter), for verification to choose from. Empty when none has support."""
     pool = np.flatnonzero(active)
     if len(pool) < 3:
-        return None
+        return []
     i0 = pool[rng.integers(0, len(pool), cfg.iterations)]
     d0 = deg[i0]
     j = nbr[start[i0] + (rng.random(len(i0)) * d0).astype(np.int64)]
@@ -110,14 +112,14 @@ def _one_instance(cs, cm, k, start, deg, nbr, active, diameter, cfg, rng):
     ok = active[j] & active[kk] & (j != kk) & (j // k != kk // k)
     tri = np.stack([i0, j, kk], axis=1)[ok]
     if len(tri) == 0:
-        return None
+        return []
     Sx, Px = cs[tri], cm[tri]
     ds = np.linalg.norm(Sx[:, 1] - Sx[:, 2], axis=1)
     dm = np.linalg.norm(Px[:, 1] - Px[:, 2], axis=1)
     good = (np.abs(ds - dm) < cfg.edge_tolerance) & (ds > 0.1 * diameter)
     tri, Sx, Px = tri[good], Sx[good], Px[good]
     if len(tri) == 0:
-        return None
+        return []
     T = kabsch_batch(Px, Sx)
     # score: distinct scene keypoints among the seed's compatible partners that the pose explains
     cnt = deg[tri[:, 0]]
@@ -128,17 +130,31 @@ def _one_instance(cs, cm, k, start, deg, nbr, active, diameter, cfg, rng):
     n_s = len(cs) // k
     key = np.unique(rows[hit] * n_s + cols[hit] // k)
     score = np.bincount(key // n_s, minlength=len(tri))
-    best = int(np.argmax(score))  # first maximum: deterministic
-    Tb = T[best]
-    inl = np.zeros(0, np.int64)
-    for _ in range(3):  # refit on all active inliers
-        inl = np.flatnonzero(active & (np.linalg.norm(transform(Tb, cm) - cs, axis=1) < cfg.inlier_distance))
-        if len(inl) < 3:
-            return None
-        Tb = kabsch(cm[inl], cs[inl])
-    if len(np.unique(inl // k)) < cfg.min_inliers:
-        return None
-    return Tb, inl
+    order = np.lexsort((np.arange(len(tri)), -score))  # best first, ties by draw order: deterministic
+    found: list[tuple[np.ndarray, np.ndarray]] = []
+    for b in order:
+        if len(found) > cfg.alternatives or score[b] + 3 < cfg.min_inliers:
+            break
+        if any(_same_pose(T[b], F, diameter) for F, _ in found):
+            continue
+        Tb, inl = T[b], np.zeros(0, np.int64)
+        for _ in range(3):  # refit on all active inliers
+            inl = np.flatnonzero(active & (np.linalg.norm(transform(Tb, cm) - cs, axis=1) < cfg.inlier_distance))
+            if len(inl) < 3:
+                break
+            Tb = kabsch(cm[inl], cs[inl])
+        if len(np.unique(inl // k)) < cfg.min_inliers:
+            if not found:
+                return []
+            continue
+        if not any(_same_pose(Tb, F, diameter) for F, _ in found):
+            found.append((Tb, inl))
+    return found
+
+
+def _same_pose(A: np.ndarray, B: np.ndarray, diameter: float) -> bool:
+    c = (np.trace(A[:3, :3] @ B[:3, :3].T) - 1) / 2
+    return c > np.cos(np.radians(10)) and np.linalg.norm(A[:3, 3] - B[:3, 3]) < 0.2 * diameter
 
 
 def _ramp(counts: np.ndarray) -> np.ndarray:

@@ -1,0 +1,14 @@
+"""pcdet: find known rigid objects in depth data and estimate their 6-DoF poses, with classical geometry."""
+from .camera import Camera
+from .config import PipelineConfig, load_pipeline
+from .detector import Detection, DetectionResult, Detector
+from .errors import InputError
+from .frame import Frame
+from .model import ModelLibrary, ObjectModel
+from .register import Registration, RegisterConfig, register
+
+__version__ = "0.1.0"
+
+__all__ = ["Camera", "Frame", "ModelLibrary", "ObjectModel", "Detector", "Detection", "DetectionResult",
+           "PipelineConfig", "load_pipeline", "register", "Registration", "RegisterConfig", "InputError",
+           "__version__"]

@@ -1,0 +1,341 @@
+"""The ``pcdet`` command. The only place that prints progress or exits; the library returns and raises."""
+from __future__ import annotations
+
+import json
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from . import __version__
+from .errors import InputError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  help="Find known rigid objects in depth data and estimate their 6-DoF poses.")
+config_app = typer.Typer(no_args_is_help=True, help="Pipeline configuration.")
+app.add_typer(config_app, name="config")
+console = Console(stderr=True)
+out_console = Console()
+
+MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+
+
+def _fail(msg: str, code: int = 1):
+    console.print(f"[bold red]error:[/] {msg}", highlight=False)
+    raise typer.Exit(code)
+
+
+def _pipeline(pipeline: Optional[str], seed: Optional[int], grouping: Optional[str] = None):
+    from .config import load_pipeline
+
+    cfg = load_pipeline(pipeline)
+    if seed is not None:
+        cfg = cfg.replace(seed=seed)
+    if grouping is not None:
+        cfg = cfg.replace(grouping={"method": grouping})
+    return cfg
+
+
+def _library(models: Path, cfg, units: str):
+    from .model import ModelLibrary
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with console.status(f"loading models from {models}"):
+            lib = ModelLibrary.from_folder(models, cfg, units=units)
+    for w in caught:
+        console.print(f"[yellow]warning:[/] {w.message}", highlight=False)
+    for n in lib.notes:
+        if not any(n == str(w.message) for w in caught):
+            console.print(f"[cyan]note:[/] {n}", highlight=False)
+    return lib
+
+
+def _guard(fn):
+    """Turn expected errors into one clear line and a non-zero exit."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(*a, **k):
+        try:
+            return fn(*a, **k)
+        except (InputError, FileNotFoundError, ValueError) as e:
+            _fail(str(e))
+    return wrapper
+
+
+@app.command()
+@_guard
+def detect(models: Path = typer.Option(MODELS_DIR, help="Folder of object models (meshes or clouds; BOP models/)."),
+           depth: Optional[Path] = typer.Option(None, help="16-bit depth PNG."),
+           camera: Optional[Path] = typer.Option(None, help="Camera JSON (fx, fy, cx, cy, width, height, "
+                                                 "depth_scale; or BOP cam_K/depth_scale)."),
+           rgb: Optional[Path] = typer.Option(None, help="Colour image for the overlay."),
+           cloud: Optional[Path] = typer.Option(None, help="Point cloud in the sensor frame (PLY/PCD)."),
+           out: Path = typer.Option(..., help="Detections JSON to write."),
+           overlay: Optional[Path] = typer.Option(None, help="PNG picture of the detections."),
+           pipeline: Optional[str] = typer.Option(None, help="Preset name (pipelines/NAME.toml) or TOML file."),
+           grouping: Optional[str] = typer.Option(None, help="Grouping method: ransac."),
+           units: str = typer.Option("auto", help="Model units: auto, m, cm, mm."),
+           seed: Optional[int] = typer.Option(None, help="Random seed (overrides the pipeline's)."),
+           ):
+    """Detect the library's objects in one depth image or point cloud."""
+    from .detector import Detector
+    from .frame import Frame
+    from .io.depth import write_png
+    from .io.results import write_detections_json
+
+    if (depth is None) == (cloud is None):
+        _fail("give either --depth with --camera, or --cloud")
+    if depth is not None and camera is None:
+        _fail("--depth needs --camera (a camera JSON)")
+    cfg = _pipeline(pipeline, seed, grouping)
+    frame = Frame.from_depth_png(depth, camera, rgb_path=rgb) if depth else Frame.from_cloud(cloud)
+    lib = _library(models, cfg, units)
+    res = Detector(lib, cfg).detect(frame)
+    write_detections_json(out, frame.info, res, cfg.to_dict(), __version__)
+    _print_detections(res)
+    if overlay:
+        from .viz import overlay as draw
+
+        write_png(overlay, draw(frame, res.detections, lib, cfg.preprocess.voxel))
+        console.print(f"overlay: {overlay}")
+    console.print(f"detections: {out}")
+
+
+def _print_detections(res):
+    t = Table(title=f"{len(res.detections)} detection(s) in {sum(res.timing_s.values()):.2f} s")
+    for c in ("model", "obj_id", "score", "x (m)", "y (m)", "z (m)", "inliers", "visible"):
+        t.add_column(c, justify="right" if c != "model" else "left")
+    for d in res.detections:
+        x, y, z = d.T_cam_model[:3, 3]
+        t.add_row(d.model, str(d.obj_id), f"{d.score:.3f}", f"{x:.3f}", f"{y:.3f}", f"{z:.3f}", str(d.n_inliers),
+                  f"{d.visible_fraction:.2f}")
+    out_console.print(t)
+
+
+@app.command()
+@_guard
+def run(dataset: Path = typer.Argument(..., help="BOP dataset folder (with models/ and a split) or split folder."),
+        models: Optional[Path] = typer.Option(None, help="Model folder (default: DATASET/models)."),
+        out: Path = typer.Option(..., help="Output folder: results.csv, frames/*.json, config.toml."),
+        targets: Optional[str] = typer.Option(None, help="'gt': localise the objects listed in scene_gt.json."),
+        pipeline: Optional[str] = typer.Option(None, help="Preset name or TOML file."),
+        grouping: Optional[str] = typer.Option(None, help="Grouping method: ransac."),
+        units: str = typer.Option("auto", help="Model units: auto, m, cm, mm (BOP models/: mm)."),
+        seed: Optional[int] = typer.Option(None, help="Random seed (overrides the pipeline's)."),
+        times: bool = typer.Option(False, help="Write measured times into results.csv (default -1, so that "
+                                   "reruns are byte-identical)."),
+        ):
+    """Detect objects in every image of a BOP dataset."""
+    from .datasets.bop import BopDataset
+    from .runner import run_dataset
+
+    if targets not in (None, "gt"):
+        _fail(f"--targets takes 'gt', got {targets!r}")
+    cfg = _pipeline(pipeline, seed, grouping)
+    ds = BopDataset(dataset)
+    if len(ds) == 0:
+        _fail(f"{dataset}: no images")
+    models = models or ds.models_dir
+    if models is None:
+        _fail(f"{dataset}: no models/ folder; pass --models")
+    lib = _library(models, cfg, units)
+    with _progress() as prog:
+        task = prog.add_task("detecting", total=len(ds), dets=0)
+        count = {"d": 0}
+
+        def on_image(img, n, err):
+            count["d"] += n
+            if err:
+                prog.console.print(f"[yellow]skipped[/] scene {img.scene_id} image {img.im_id}: {err}",
+                                   highlight=False)
+            prog.update(task, advance=1, dets=count["d"])
+
+        s = run_dataset(ds, lib, cfg, out, targets == "gt", __version__, times, on_image)
+    med = float(np.median(s.seconds)) if s.seconds else 0.0
+    console.print(f"{s.images} image(s), {s.detections} detection(s), median {med:.2f} s/image, "
+                  f"{len(s.failed)} failed -> {out / 'results.csv'}")
+    if s.failed:
+        raise typer.Exit(2 if s.images == 0 else 0)
+
+
+def _progress():
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TextColumn("{task.fields[dets]} detections"), TimeElapsedColumn(), console=console)
+
+
+@app.command()
+@_guard
+def register(source: Path = typer.Argument(..., help="Model or cloud to move (mesh, PLY/PCD/XYZ)."),
+             target: Path = typer.Argument(..., help="Scan to align it to."),
+             out: Optional[Path] = typer.Option(None, help="JSON file for T_target_source."),
+             voxel: Optional[float] = typer.Option(None, help="Sampling (m); default diameter / 40."),
+             grouping: Optional[str] = typer.Option(None, help="Grouping method: ransac."),
+             units: str = typer.Option("auto", help="Units of both files: auto, m, cm, mm."),
+             seed: int = typer.Option(0, help="Random seed."),
+             ):
+    """Align SOURCE to TARGET with no initial guess (global alignment, then ICP)."""
+    from .io.atomic import atomic_write_text
+    from .register import RegisterConfig
+    from .register import register as do_register
+
+    if grouping not in (None, "ransac"):
+        _fail(f"--grouping {grouping!r} is not available for register; use ransac")
+    with console.status("registering"):
+        r = do_register(source, target, RegisterConfig(voxel=voxel, seed=seed), units)
+    np.set_printoptions(precision=6, suppress=True)
+    out_console.print("T_target_source =")
+    out_console.print(str(r.T_target_source))
+    console.print(f"fitness {r.fitness:.3f}, rmse {r.rmse_m * 1000:.2f} mm, {r.n_inliers} inlier matches, "
+                  f"{sum(r.timing_s.values()):.2f} s")
+    if out:
+        atomic_write_text(out, json.dumps({"source": str(source), "target": str(target),
+                                           "T_target_source": np.round(r.T_target_source, 9).tolist(),
+                                           "fitness": r.fitness, "rmse_m": r.rmse_m, "n_inliers": r.n_inliers,
+                                           "timing_s": r.timing_s, "pcdet_version": __version__}, indent=1))
+        console.print(f"written: {out}")
+
+
+@app.command()
+@_guard
+def synth(models: Path = typer.Option(MODELS_DIR, help="Folder of mesh models."),
+          out: Path = typer.Option(..., help="Output BOP dataset folder."),
+          scenes: int = typer.Option(20, help="Number of scenes (one image each)."),
+          objects: int = typer.Option(4, help="Library objects per scene."),
+          instances: int = typer.Option(1, help="Up to this many copies of each chosen object."),
+          seed: int = typer.Option(0, help="Random seed."),
+          noise: bool = typer.Option(True, help="Apply the Kinect noise model."),
+          units: str = typer.Option("auto", help="Model units: auto, m, cm, mm."),
+          ):
+    """Render synthetic table-top scenes with exact ground truth, as a BOP dataset."""
+    from .config import PipelineConfig
+    from .synth import SynthConfig, synthesize
+
+    lib = _library(models, PipelineConfig(), units)
+    cfg = SynthConfig(scenes=scenes, objects=objects, instances=instances, seed=seed, noise=noise)
+    with _progress() as prog:
+        task = prog.add_task("rendering", total=scenes, dets=0)
+        synthesize(lib, out, cfg, progress=lambda i, n: prog.update(task, completed=i))
+    console.print(f"{scenes} scene(s) -> {out}")
+
+
+@app.command("eval")
+@_guard
+def eval_cmd(dataset: Path = typer.Argument(..., help="BOP dataset with ground truth."),
+             results: Path = typer.Argument(..., help="BOP results CSV."),
+             models: Optional[Path] = typer.Option(None, help="Model folder (default: DATASET/models)."),
+             json_out: Optional[Path] = typer.Option(None, "--json", help="Write the tables as JSON."),
+             units: str = typer.Option("auto", help="Model units."),
+             ):
+    """Score a BOP results file: ADD, ADD-S, MSSD, MSPD recall and BOP-style AR, per object and overall."""
+    from .config import PipelineConfig
+    from .datasets.bop import BopDataset
+    from .evaluate import evaluate
+    from .io.atomic import atomic_write_text
+    from .io.results import read_bop_csv
+
+    ds = BopDataset(dataset)
+    models = models or ds.models_dir
+    if models is None:
+        _fail(f"{dataset}: no models/ folder; pass --models")
+    lib = _library(models, PipelineConfig(), units)
+    ev = evaluate(ds, read_bop_csv(results), lib)
+    _print_eval(ev, lib)
+    if json_out:
+        atomic_write_text(json_out, json.dumps(ev.to_dict(), indent=1, default=float))
+        console.print(f"written: {json_out}")
+
+
+def _print_eval(ev, lib):
+    cols = [("instances", "{}", "GT"), ("estimates", "{}", "est"), ("recall_add", "{:.3f}", "ADD"),
+            ("recall_adds", "{:.3f}", "ADD-S"), ("precision_adds", "{:.3f}", "prec"),
+            ("ar_mssd", "{:.3f}", "AR_MSSD"), ("ar_mspd", "{:.3f}", "AR_MSPD"), ("ar", "{:.3f}", "AR")]
+    t = Table(title="recall at ADD/ADD-S < 0.1 d, precision (ADD-S), BOP AR (MSSD, MSPD; no VSD)")
+    t.add_column("object")
+    for _, _, h in cols:
+        t.add_column(h, justify="right")
+    for oid, s in ev.per_object.items():
+        name = next((m.name for m in lib if m.obj_id == oid), str(oid))
+        t.add_row(f"{name} ({oid})", *[f.format(s.get(c, 0)) for c, f, _ in cols])
+    t.add_row("[bold]all[/]", *[f.format(ev.overall.get(c, 0)) for c, f, _ in cols])
+    out_console.print(t)
+
+
+@app.command()
+@_guard
+def demo(out: Path = typer.Option(Path("demo_out"), help="Output folder."),
+         scenes: int = typer.Option(3, help="Synthetic scenes to make."),
+         seed: int = typer.Option(0, help="Random seed."),
+         ):
+    """Synthesise scenes from the shipped models, detect, evaluate, and draw an overlay."""
+    from .config import load_pipeline
+    from .datasets.bop import BopDataset
+    from .evaluate import evaluate
+    from .io.depth import write_png
+    from .io.results import read_bop_csv
+    from .runner import run_dataset
+    from .synth import SynthConfig, synthesize
+    from .viz import overlay as draw
+
+    cfg = load_pipeline("default").replace(seed=seed)
+    lib = _library(MODELS_DIR, cfg, "auto")
+    data = out / "dataset"
+    t0 = time.perf_counter()
+    with console.status("rendering synthetic scenes"):
+        synthesize(lib, data, SynthConfig(scenes=scenes, objects=4, seed=seed))
+    ds = BopDataset(data)
+    with _progress() as prog:
+        task = prog.add_task("detecting", total=len(ds), dets=0)
+        count = {"d": 0}
+
+        def on_image(img, n, err):
+            count["d"] += n
+            prog.update(task, advance=1, dets=count["d"])
+
+        s = run_dataset(ds, lib, cfg, out / "run", version=__version__, on_image=on_image)
+    ev = evaluate(ds, read_bop_csv(out / "run" / "results.csv"), lib)
+    _print_eval(ev, lib)
+    from .detector import Detector
+
+    img = ds.images[0]
+    frame = ds.frame(img)
+    res = Detector(lib, cfg).detect(frame)
+    write_png(out / "overlay.png", draw(frame, res.detections, lib, cfg.preprocess.voxel))
+    console.print(f"median {np.median(s.seconds):.2f} s per image; total {time.perf_counter() - t0:.1f} s")
+    console.print(f"dataset: {data}\nresults: {out / 'run' / 'results.csv'}\noverlay: {out / 'overlay.png'}")
+
+
+@config_app.command("dump")
+@_guard
+def config_dump(pipeline: Optional[str] = typer.Option(None, help="Preset name or TOML file (default: defaults)."),
+                ):
+    """Print the resolved pipeline configuration as TOML."""
+    from .config import dump_toml
+
+    typer.echo(dump_toml(_pipeline(pipeline, None)))
+
+
+@app.command()
+def version():
+    """Print the version."""
+    out_console.print(__version__)
+
+
+def main():
+    try:
+        app()
+    except KeyboardInterrupt:
+        console.print("interrupted")
+        sys.exit(130)
+
+
+if __name__ == "__main__":
+    main()
