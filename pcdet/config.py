@@ -100,12 +100,13 @@ class GroupingConfig:
     min_inliers: int = 5
     max_instances: int = 2
     alternatives: int = 3
+    grid_per_diameter: float = 12.0
 
     def __post_init__(self):
         if self.method not in ("ransac",):
             raise ValueError(f"GroupingConfig.method {self.method!r} is not available; choose 'ransac'")
         _positive(self, "iterations", "inlier_distance", "edge_tolerance", "normal_tolerance_deg",
-                  "min_inliers", "max_instances")
+                  "min_inliers", "max_instances", "grid_per_diameter")
         if self.alternatives < 0:
             raise ValueError(f"GroupingConfig.alternatives must be >= 0, got {self.alternatives}")
 
@@ -236,6 +237,7 @@ FIELD_DOCS = {
     "grouping.min_inliers": "distinct scene keypoints a hypothesis needs",
     "grouping.max_instances": "instances of one model searched per cluster",
     "grouping.alternatives": "extra distinct poses kept per round for verification to choose from",
+    "grouping.grid_per_diameter": "scene keypoints used for grouping are at least diameter / this apart",
     "refine.iterations": "ICP iterations at most",
     "refine.max_distance": "m; ICP correspondence distance",
     "refine.kernel": "m; Tukey kernel width of the point-to-plane residual",

@@ -99,18 +99,24 @@ class Detector:
         models = [i for i, m in enumerate(self.library) if targets is None or m.obj_id in targets]
         hyps: list[Hypothesis] = []
         seeds = np.random.SeedSequence(cfg.seed).spawn(len(self.library))
-        with tm("grouping"):
-            kpts = scene.points[kp]
-            pairs = scene_pairs(kpts, scene.normals[kp], scene.labels[kp],
-                                max((self.library[i].diameter for i in models), default=0.0))
+        kpts, knrm, klab = scene.points[kp], scene.normals[kp], scene.labels[kp]
+        pair_cache: dict[tuple[float, float], tuple] = {}
         for i in models:
             m = self.library[i]
             with tm("matching"):
                 c = match_features(feats, m.features, cfg.matching, self._trees[i])
             with tm("grouping"):
+                # large models need no denser grid of scene points than diameter / grid_per_diameter
+                step = max(cfg.keypoints.spacing, m.diameter / cfg.grouping.grid_per_diameter)
+                key = (round(step, 4), round(m.diameter, 3))
+                if key not in pair_cache:
+                    sub = np.arange(len(kp)) if step <= cfg.keypoints.spacing * 1.05 else \
+                        np.sort(voxel_downsample(kpts, step)[2])
+                    pair_cache[key] = (sub, scene_pairs(kpts[sub], knrm[sub], klab[sub], m.diameter))
+                sub, pairs = pair_cache[key]
                 rng = np.random.default_rng(seeds[i])
-                hyps += ransac_instances(kpts, c.model, m.kp_points, m.kp_normals, pairs, m.diameter, cfg.grouping,
-                                         rng, scene.labels[kp], i, m.points)
+                hyps += ransac_instances(kpts[sub], c.model[sub], m.kp_points, m.kp_normals, pairs, m.diameter,
+                                         cfg.grouping, rng, klab[sub], i, m.points)
         stats["hypotheses"] = len(hyps)
         if len(hyps) == 0 or len(scene.points) == 0:
             return DetectionResult([], tm.t, stats)
