@@ -14,7 +14,8 @@ from .errors import InputError
 class Camera:
     """Pinhole intrinsics in pixels; ``width`` x ``height`` is the image size.
 
-    ``depth_scale`` converts a raw 16-bit depth value to metres (``raw * depth_scale = m``).
+    ``depth_scale`` converts a raw 16-bit depth value to metres (``raw * depth_scale = m``); note that camera
+    files give it in millimetres per unit, as BOP does.
     """
 
     fx: float
@@ -54,10 +55,10 @@ class Camera:
     def from_json(cls, path, width: int | None = None, height: int | None = None, key: str | None = None) -> "Camera":
         """Read a camera file.
 
-        Accepted layouts: ``{"fx","fy","cx","cy","width","height","depth_scale"}`` (depth_scale in m per raw
-        unit); a BOP ``camera.json`` (``fx``.. with ``depth_scale`` in mm per raw unit); a BOP
-        ``scene_camera.json`` (``{"<im_id>": {"cam_K", "depth_scale"}}``, mm per raw unit, ``key`` selects the
-        image, default the first); Open3D's ``PinholeCameraIntrinsic`` JSON (column-major ``intrinsic_matrix``).
+        Accepted layouts: ``{"fx","fy","cx","cy","width","height","depth_scale"}`` (BOP's camera.json);
+        a BOP ``scene_camera.json`` (``{"<im_id>": {"cam_K", "depth_scale"}}``, ``key`` selects the image,
+        default the first); Open3D's ``PinholeCameraIntrinsic`` JSON (column-major ``intrinsic_matrix``, depth
+        in mm). As in BOP, ``depth_scale`` is millimetres per raw unit (raw * depth_scale = mm; default 1).
         ``width``/``height`` fill in sizes that the file lacks (BOP scene_camera.json has none).
         """
         path = Path(path)
@@ -81,14 +82,10 @@ class Camera:
             if "cam_K" in data:  # one BOP scene_camera entry: depth_scale is mm per raw unit
                 return cls.from_K(data["cam_K"], data.get("width", width), data.get("height", height),
                                   float(data.get("depth_scale", 1.0)) / 1000.0)
-            if "fx" in data:
-                ds = float(data.get("depth_scale", 0.001))
-                # BOP's camera.json gives depth_scale in mm per unit (typically 0.1 or 1.0); pcdet's own
-                # format gives metres per unit (typically 0.001). Values >= 0.05 cannot be m/unit for 16 bits.
-                if "depth_scale" in data and ds >= 0.05:
-                    ds /= 1000.0
+            if "fx" in data:  # depth_scale as in BOP: raw * depth_scale = millimetres
                 return cls(float(data["fx"]), float(data["fy"]), float(data["cx"]), float(data["cy"]),
-                           int(data.get("width", width)), int(data.get("height", height)), ds)
+                           int(data.get("width", width)), int(data.get("height", height)),
+                           float(data.get("depth_scale", 1.0)) / 1000.0)
             entries = {k: v for k, v in data.items() if isinstance(v, dict) and "cam_K" in v}
             if entries:
                 k = str(key) if key is not None else sorted(entries, key=lambda s: int(s) if s.isdigit() else s)[0]

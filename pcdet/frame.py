@@ -55,7 +55,7 @@ class Frame:
 
     @classmethod
     def from_depth_png(cls, depth_path, camera: Camera | str | Path, rgb_path=None, info: dict | None = None,
-                       max_depth_m: float = 20.0) -> "Frame":
+                       plausible_m: tuple[float, float] = (0.05, 20.0)) -> "Frame":
         """Read a 16-bit depth PNG, converting raw units with ``camera.depth_scale``."""
         if not isinstance(camera, Camera):
             camera = Camera.from_json(camera)
@@ -67,10 +67,11 @@ class Frame:
         valid = depth[depth > 0]
         if valid.size == 0:
             raise InputError("depth image holds no valid (non-zero) pixel", depth_path)
-        if np.median(valid) > max_depth_m:
-            raise InputError(f"median depth is {np.median(valid):.1f} m with depth_scale {camera.depth_scale}: "
-                             "the camera's depth_scale is probably wrong (raw units are often mm: 0.001)",
-                             depth_path)
+        med = float(np.median(valid))
+        if not plausible_m[0] <= med <= plausible_m[1]:
+            raise InputError(f"median depth is {med:.4g} m with {camera.depth_scale * 1000:g} mm per raw unit: "
+                             "the camera's depth_scale is probably wrong (it is mm per unit, as in BOP; "
+                             "Kinect-style PNGs in mm need 1.0)", depth_path)
         rgb = read_rgb(rgb_path) if rgb_path is not None else None
         if rgb is not None and rgb.shape[:2] != raw.shape:
             raise InputError(f"colour image is {rgb.shape[1]}x{rgb.shape[0]}, depth is {raw.shape[1]}x{raw.shape[0]}",

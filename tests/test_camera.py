@@ -1,0 +1,65 @@
+"""Camera files in every accepted layout, bad files, and back-projection."""
+import json
+
+import numpy as np
+import pytest
+
+from pcdet.camera import Camera
+from pcdet.errors import InputError
+
+from .conftest import shared
+
+
+def test_pcdet_layout_and_roundtrip(tmp_path):
+    p = tmp_path / "cam.json"
+    p.write_text(json.dumps({"fx": 500, "fy": 510, "cx": 320, "cy": 240, "width": 640, "height": 480}))
+    cam = Camera.from_json(p)
+    assert (cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height) == (500, 510, 320, 240, 640, 480)
+    assert cam.depth_scale == pytest.approx(0.001)  # default: 1 mm per raw unit
+
+
+def test_bop_camera_json_depth_scale_in_mm(tmp_path):
+    p = tmp_path / "camera.json"
+    p.write_text(json.dumps({"fx": 572.4, "fy": 573.6, "cx": 325.3, "cy": 242.0, "width": 640, "height": 480,
+                             "depth_scale": 0.1}))
+    assert Camera.from_json(p).depth_scale == pytest.approx(0.0001)  # 0.1 mm per unit
+
+
+def test_bop_scene_camera_and_open3d_layouts():
+    cam = Camera.from_json(shared("ycbv_frame") / "test/000001/scene_camera.json", width=640, height=480)
+    assert cam.fx == pytest.approx(1066.778) and cam.depth_scale == pytest.approx(1e-4)
+    o3d_cam = Camera.from_json(shared("open3d_rgbd") / "camera_primesense.json")
+    assert (o3d_cam.fx, o3d_cam.cx, o3d_cam.cy) == (525.0, 319.5, 239.5)  # column-major matrix read right
+
+
+@pytest.mark.parametrize("content, words", [
+    ("{not json", "not valid JSON"),
+    ('{"fx": 500, "fy": 500}', "malformed field"),
+    ('{"fx": -1, "fy": 500, "cx": 1, "cy": 1, "width": 640, "height": 480}', "fx must be a positive"),
+    ('{"focal": 3}', "none of the known layouts"),
+    ("[1, 2]", "JSON object"),
+])
+def test_bad_camera_files_name_the_file(tmp_path, content, words):
+    p = tmp_path / "bad_cam.json"
+    p.write_text(content)
+    with pytest.raises(InputError) as e:
+        Camera.from_json(p)
+    assert "bad_cam.json" in str(e.value) and words in str(e.value)
+
+
+def test_missing_camera_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nope.json"):
+        Camera.from_json(tmp_path / "nope.json")
+
+
+def test_backproject_project_roundtrip(rng):
+    cam = Camera(500.0, 505.0, 319.5, 239.5, 640, 480)
+    depth = rng.uniform(0.5, 2.0, (480, 640)).astype(np.float32)
+    depth[::7, ::5] = 0  # invalid pixels are skipped
+    pts, pix = cam.backproject(depth)
+    assert len(pts) == (depth > 0).sum()
+    uv = cam.project(pts)
+    v, u = np.divmod(pix, 640)
+    np.testing.assert_allclose(uv[:, 0], u, atol=1e-6)
+    np.testing.assert_allclose(uv[:, 1], v, atol=1e-6)
+    np.testing.assert_allclose(pts[:, 2], depth.reshape(-1)[pix], rtol=1e-6)

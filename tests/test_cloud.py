@@ -1,0 +1,51 @@
+"""Voxel grid, plane segmentation and clustering: known answers, determinism."""
+import numpy as np
+import pytest
+
+from pcdet.cloud import euclidean_clusters, segment_plane, voxel_downsample
+
+
+def test_voxel_grid_means_and_representatives(rng):
+    pts = rng.uniform(0, 0.1, (5000, 3))
+    mean, _, rep = voxel_downsample(pts, 0.02)
+    assert len(mean) == 125  # 5 x 5 x 5 cells, all occupied at this density
+    keys = np.floor(pts / 0.02).astype(int)
+    k0 = keys[rep]
+    np.testing.assert_array_equal(np.floor(mean / 0.02).astype(int), k0)  # representative in its own cell
+    m2, _, rep2 = voxel_downsample(pts[::-1].copy(), 0.02)
+    np.testing.assert_allclose(m2, mean, atol=1e-12)  # order of input does not matter for the means
+
+
+def test_plane_found_with_outliers(rng):
+    n = np.array([0.1, -0.8, -0.3])
+    n /= np.linalg.norm(n)
+    u = np.cross(n, [1, 0, 0]); u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    P = rng.uniform(-0.5, 0.5, (3000, 2))
+    plane_pts = np.array([0, 0, 1.0]) + P[:, :1] * u + P[:, 1:] * v + rng.normal(0, 0.002, (3000, 1)) * n
+    clutter = rng.uniform([-0.3, -0.3, 0.5], [0.3, 0.3, 0.9], (1500, 3))
+    pts = np.vstack([plane_pts, clutter])
+    pl = segment_plane(pts, 0.008, 200, rng=0)
+    assert abs(abs(pl.normal @ n) - 1) < 1e-3
+    assert pl.normal @ np.array([0, 0, 1.0]) < 0  # faces the camera at the origin
+    assert np.isin(np.arange(3000), pl.inliers).mean() > 0.99
+    pl2 = segment_plane(pts, 0.008, 200, rng=0)
+    np.testing.assert_array_equal(pl.inliers, pl2.inliers)  # seeded: identical
+
+
+def test_clusters_separate_and_drop_small(rng):
+    a = rng.normal([0, 0, 1], 0.01, (300, 3))
+    b = rng.normal([0.3, 0, 1], 0.01, (200, 3))
+    c = rng.normal([0, 0.3, 1], 0.002, (5, 3))
+    lab = euclidean_clusters(np.vstack([a, b, c]), 0.02, min_size=10)
+    assert set(lab[:300]) == {0} and set(lab[300:500]) == {1} and set(lab[500:]) == {-1}
+
+
+@pytest.mark.parametrize("voxel", [0.005, 0.013])
+def test_voxel_grid_normals_are_unit(rng, voxel):
+    pts = rng.uniform(0, 0.1, (2000, 3))
+    nrm = rng.normal(size=(2000, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    _, n, _ = voxel_downsample(pts, voxel, nrm)
+    ok = np.linalg.norm(n, axis=1) > 0
+    np.testing.assert_allclose(np.linalg.norm(n[ok], axis=1), 1, atol=1e-9)

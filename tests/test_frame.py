@@ -1,0 +1,80 @@
+"""Frames from depth PNGs and from clouds (organized or not, NaNs, OpenGL-style frames)."""
+import json
+
+import numpy as np
+import pytest
+
+from pcdet.camera import Camera
+from pcdet.errors import InputError
+from pcdet.frame import Frame
+from pcdet.io.depth import write_depth_png
+
+from .conftest import shared
+
+
+def _cam_file(tmp_path, w=64, h=48, scale=1.0):
+    p = tmp_path / "cam.json"
+    p.write_text(json.dumps({"fx": 60, "fy": 60, "cx": w / 2, "cy": h / 2, "width": w, "height": h,
+                             "depth_scale": scale}))
+    return p
+
+
+def test_depth_png_to_metres(tmp_path):
+    raw = np.full((48, 64), 750, np.uint16)
+    raw[0, 0] = 0
+    write_depth_png(tmp_path / "d.png", raw)
+    f = Frame.from_depth_png(tmp_path / "d.png", _cam_file(tmp_path))
+    assert f.depth.dtype == np.float32 and f.depth[1, 1] == pytest.approx(0.75) and f.depth[0, 0] == 0
+    assert len(f.points()[0]) == 48 * 64 - 1
+
+
+def test_size_mismatch_names_file(tmp_path):
+    write_depth_png(tmp_path / "d.png", np.full((40, 64), 700, np.uint16))
+    with pytest.raises(InputError, match=r"d\.png: depth image is 64x40 but the camera is 64x48"):
+        Frame.from_depth_png(tmp_path / "d.png", _cam_file(tmp_path))
+
+
+@pytest.mark.parametrize("scale", [1000.0, 0.001])
+def test_wrong_depth_scale_is_caught(tmp_path, scale):
+    """mm PNG with a scale that makes it metres (1000 mm/unit), or micrometres (0.001 mm/unit)."""
+    write_depth_png(tmp_path / "d.png", np.full((48, 64), 800, np.uint16))
+    with pytest.raises(InputError, match=r"d\.png: median depth .* depth_scale is probably wrong"):
+        Frame.from_depth_png(tmp_path / "d.png", _cam_file(tmp_path, scale=scale))
+
+
+def test_empty_depth(tmp_path):
+    write_depth_png(tmp_path / "d.png", np.zeros((48, 64), np.uint16))
+    with pytest.raises(InputError, match="no valid"):
+        Frame.from_depth_png(tmp_path / "d.png", _cam_file(tmp_path))
+
+
+def test_frame_rejects_integer_depth():
+    with pytest.raises(InputError, match="float metres"):
+        Frame(np.zeros((4, 4), np.uint16), Camera(1, 1, 2, 2, 4, 4))
+
+
+def test_cloud_with_nan_and_inf(tmp_path, rng):
+    pts = rng.uniform([-0.2, -0.2, 0.8], [0.2, 0.2, 1.2], (2000, 3))
+    pts[::10] = np.nan
+    pts[5] = np.inf
+    np.savetxt(tmp_path / "c.xyz", pts)
+    f = Frame.from_cloud(tmp_path / "c.xyz")
+    p, _ = f.points()
+    assert np.isfinite(p).all() and len(p) > 0
+
+
+def test_empty_and_all_nan_clouds(tmp_path):
+    (tmp_path / "e.xyz").write_text("")
+    with pytest.raises(InputError, match=r"e\.xyz: point cloud is empty"):
+        Frame.from_cloud(tmp_path / "e.xyz")
+    np.savetxt(tmp_path / "n.xyz", np.full((10, 3), np.nan))
+    with pytest.raises(InputError, match=r"n\.xyz: point cloud holds no finite point"):
+        Frame.from_cloud(tmp_path / "n.xyz")
+
+
+def test_organized_pcl_scene_recovers_kinect_intrinsics():
+    """PCL's Kinect scene is organized and stored y-up/z-back; its pinhole is fitted to 0.01 px."""
+    f = Frame.from_cloud(shared("pcl_milk") / "scene.pcd")
+    assert f.camera.fx == pytest.approx(525.0, abs=0.01) and f.camera.cx == pytest.approx(319.5, abs=0.01)
+    np.testing.assert_array_equal(np.diag(f.T_input_cam), [1, -1, -1, 1])
+    assert (f.depth > 0).sum() == 241407  # every finite point kept, one per pixel
