@@ -28,7 +28,7 @@ MESH_SUFFIXES = {".ply", ".obj", ".stl", ".off", ".glb", ".gltf"}
 CLOUD_ONLY_SUFFIXES = {".pcd", ".xyz", ".xyzn", ".pts"}
 MODEL_SUFFIXES = MESH_SUFFIXES | CLOUD_ONLY_SUFFIXES
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
-CACHE_VERSION = 4
+CACHE_VERSION = 6
 # An object wider than this many "metres" is certainly in mm (table-top and warehouse objects are < 3 m).
 MM_DETECT_EXTENT = 3.0
 
@@ -192,7 +192,9 @@ def build_model(path, cfg: PipelineConfig, units="auto", obj_id: int = 0, name: 
             raise InputError("mesh has zero surface area", path)
         count = int(min(400_000, max(5000, 8 * mesh.area / pp.voxel ** 2)))
         samples, fidx = trimesh.sample.sample_surface(mesh, count, seed=seed)
-        pts, face_nrm, _ = voxel_downsample(np.asarray(samples), pp.voxel, np.asarray(mesh.face_normals)[fidx])
+        # one real surface sample per voxel (voxel means would sit inside the surface at edges and corners)
+        _, _, rep = voxel_downsample(np.asarray(samples), pp.voxel)
+        pts, face_nrm = np.asarray(samples)[rep], np.asarray(mesh.face_normals)[fidx[rep]]
         # estimate normals exactly as the scene's are (PCA at the same radius), so that descriptors and pair
         # features compare like with like; the mesh only decides which way each normal points
         nrm = estimate_normals(pts, pp.normal_radius, pp.normal_max_nn, viewpoint=None)
@@ -204,8 +206,8 @@ def build_model(path, cfg: PipelineConfig, units="auto", obj_id: int = 0, name: 
     if len(pts) < 10:
         raise InputError(f"model has only {len(pts)} samples at voxel {pp.voxel} m: is it tiny, or in the "
                          "wrong units?", path)
-    diameter = _diameter(pts)
     vv = verts if faces is not None else None
+    diameter = _diameter(verts if vv is not None else pts)  # a mesh's vertices give the exact value
     kpp, kpn, feats = view_features(pts, nrm, vv, faces, diameter, cfg)
     if len(kpp) < 3:
         raise InputError("no view of the model yields keypoints: is it flat, tiny, or in the wrong units?", path)

@@ -6,7 +6,7 @@ rendered depth r (tolerance tau):
   supported  |d - r| <= tau       the measurement agrees with the model's surface;
   occluded   d < r - tau          something in front hides the model there (no evidence either way);
   violation  d > r + tau          the sensor sees through where the model's surface would be;
-  unknown    d == 0               no measurement.
+  unknown    d == 0               no measurement (weakly against: sensors drop pixels, but not whole objects).
 When the scene's supporting plane is known, model samples more than tau below it are physically impossible
 (an object cannot sink into its support); their share multiplies the score down.
 """
@@ -25,7 +25,7 @@ from .render import render_meshes, render_points
 
 @dataclass
 class Verification:
-    """score = supported / (supported + violations + occluded / 2) x (1 - penetration)^2, in [0, 1];
+    """score = supported / (supported + violations + occluded / 2 + unknown / 4) x (1 - penetration)^2, in [0, 1];
     fitness = supported / (supported + violations); visible_fraction = supported / rendered pixels;
     penetration = share of model samples below the supporting plane (0 without a plane).
     support : (S,) flat pixel indices of the supported pixels (what this hypothesis claims)."""
@@ -90,7 +90,8 @@ def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camer
     if plane is not None:
         P = model.points @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
         pen = float(np.mean(P @ plane.normal + plane.offset < -tau))
-    score = ns / max(ns + nv + 0.5 * no, 1.0) * (1.0 - pen) ** 2
+    nu = int((~known).sum())
+    score = ns / max(ns + nv + 0.5 * no + 0.25 * nu, 1.0) * (1.0 - pen) ** 2
     return Verification(score, ns / max(ns + nv, 1), ns / max(len(pix), 1), len(pix), ns, no, nv, pen, pix[sup])
 
 

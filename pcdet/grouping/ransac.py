@@ -137,12 +137,7 @@ def _one_instance(cs, cm, k, start, deg, nbr, active, diameter, cfg, rng) -> lis
             break
         if any(_same_pose(T[b], F, diameter) for F, _ in found):
             continue
-        Tb, inl = T[b], np.zeros(0, np.int64)
-        for _ in range(3):  # refit on all active inliers
-            inl = np.flatnonzero(active & (np.linalg.norm(transform(Tb, cm) - cs, axis=1) < cfg.inlier_distance))
-            if len(inl) < 3:
-                break
-            Tb = kabsch(cm[inl], cs[inl])
+        Tb, inl = _refit(T[b], cm, cs, active, cfg.inlier_distance)
         if len(np.unique(inl // k)) < cfg.min_inliers:
             if not found:
                 return []
@@ -150,6 +145,22 @@ def _one_instance(cs, cm, k, start, deg, nbr, active, diameter, cfg, rng) -> lis
         if not any(_same_pose(Tb, F, diameter) for F, _ in found):
             found.append((Tb, inl))
     return found
+
+
+def _refit(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, active: np.ndarray, tau: float):
+    """Robust refit of ``T`` on the active correspondences (model cm -> scene cs): Tukey-weighted Kabsch
+    with the kernel shrinking from ``tau`` to ``tau / 2``, so that wrong matches that happen to fall near the
+    object do not pull the pose. Returns the pose and the correspondences within ``tau`` of it."""
+    for scale in (1.0, 1.0, 0.75, 0.5, 0.5):
+        d = np.linalg.norm(transform(T, cm) - cs, axis=1)
+        c = tau * scale
+        sel = np.flatnonzero(active & (d < c))
+        if len(sel) < 3:
+            break
+        w = (1 - (d[sel] / c) ** 2) ** 2
+        T = kabsch(cm[sel], cs[sel], w + 1e-12)
+    d = np.linalg.norm(transform(T, cm) - cs, axis=1)
+    return T, np.flatnonzero(active & (d < tau))
 
 
 def _same_pose(A: np.ndarray, B: np.ndarray, diameter: float) -> bool:

@@ -60,6 +60,8 @@ def read_cloud(path, keep_invalid: bool = False) -> CloudData:
     if suffix not in CLOUD_SUFFIXES:
         raise InputError(f"unknown point-cloud format {suffix!r}; expected one of {sorted(CLOUD_SUFFIXES)}", path)
     shape = None
+    if path.stat().st_size == 0:
+        raise InputError("point cloud is empty (0 bytes)", path)
     if suffix in (".xyz", ".xyzn", ".pts", ".txt"):
         try:
             a = np.loadtxt(path, ndmin=2, dtype=float)

@@ -1,0 +1,60 @@
+"""The whole pipeline on real data with ground truth, and its determinism."""
+import json
+
+import numpy as np
+import pytest
+
+from pcdet.config import PipelineConfig
+from pcdet.datasets.bop import BopDataset
+from pcdet.detector import Detector
+from pcdet.frame import Frame
+from pcdet.metrics import adds, rotation_error_deg
+from pcdet.model import ModelLibrary
+
+from .conftest import shared
+
+
+@pytest.mark.real
+@pytest.mark.parametrize("model_file", ["model_milk.pcd", "model_milk_crop.pcd"])
+def test_pcl_milk_found_once_within_5mm_2deg(model_file):
+    d = shared("pcl_milk")
+    T_gt = np.array(json.loads((d / "gt.json").read_text())["poses"][model_file])
+    lib = ModelLibrary.from_files([d / model_file])
+    res = Detector(lib).detect(Frame.from_cloud(d / "scene.pcd"))
+    assert len(res.detections) == 1
+    T = res.detections[0].T_cam_model  # in the scene file's own frame
+    assert np.linalg.norm(T[:3, 3] - T_gt[:3, 3]) < 0.005
+    assert rotation_error_deg(T[:3, :3], T_gt[:3, :3]) < 2.0
+
+
+@pytest.mark.real
+def test_ycbv_frame_two_of_three_by_adds():
+    ds = BopDataset(shared("ycbv_frame"))
+    lib = ModelLibrary.from_folder(ds.models_dir)
+    img = ds.images[0]
+    res = Detector(lib).detect(ds.frame(img), ds.targets(img))
+    good = 0
+    for g in ds.gt(img):
+        m = lib.by_id(g["obj_id"])
+        errs = [adds(d.T_cam_model, g["T_cam_model"], m.points) for d in res.detections if d.obj_id == m.obj_id]
+        good += bool(errs) and min(errs) < 0.1 * m.diameter
+    assert good >= 2, f"{good} of 3 objects within ADD-S 0.1 d"
+
+
+def test_same_result_twice(synth_small, library):
+    ds = BopDataset(synth_small)
+    f = ds.frame(ds.images[0])
+    det = Detector(library, PipelineConfig(seed=4))
+    a, b = det.detect(f), det.detect(f)
+    assert len(a.detections) == len(b.detections) > 0
+    for x, y in zip(a.detections, b.detections):
+        np.testing.assert_array_equal(x.T_cam_model, y.T_cam_model)
+        assert x.score == y.score
+
+
+def test_empty_scene_gives_no_detection(library):
+    from pcdet.synth import KINECT
+
+    depth = np.full((KINECT.height, KINECT.width), 0.9, np.float32)  # a bare wall
+    res = Detector(library).detect(Frame(depth, KINECT))
+    assert res.detections == []
