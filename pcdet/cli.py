@@ -11,6 +11,7 @@ from typing import Optional
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -28,7 +29,7 @@ MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 
 
 def _fail(msg: str, code: int = 1):
-    console.print(f"[bold red]error:[/] {msg}", highlight=False)
+    console.print(f"[bold red]error:[/] {escape(msg)}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
 
 
@@ -51,10 +52,10 @@ def _library(models: Path, cfg, units: str):
         with console.status(f"loading models from {models}"):
             lib = ModelLibrary.from_folder(models, cfg, units=units)
     for w in caught:
-        console.print(f"[yellow]warning:[/] {w.message}", highlight=False)
+        console.print(f"[yellow]warning:[/] {escape(str(w.message))}", highlight=False, soft_wrap=True)
     for n in lib.notes:
         if not any(n == str(w.message) for w in caught):
-            console.print(f"[cyan]note:[/] {n}", highlight=False)
+            console.print(f"[cyan]note:[/] {escape(n)}", highlight=False, soft_wrap=True)
     return lib
 
 
@@ -155,8 +156,8 @@ def run(dataset: Path = typer.Argument(..., help="BOP dataset folder (with model
         def on_image(img, n, err):
             count["d"] += n
             if err:
-                prog.console.print(f"[yellow]skipped[/] scene {img.scene_id} image {img.im_id}: {err}",
-                                   highlight=False)
+                prog.console.print(f"[yellow]skipped[/] scene {img.scene_id} image {img.im_id}: {escape(err)}",
+                                   highlight=False, soft_wrap=True)
             prog.update(task, advance=1, dets=count["d"])
 
         s = run_dataset(ds, lib, cfg, out, targets == "gt", __version__, times, on_image)

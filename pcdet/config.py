@@ -99,14 +99,16 @@ class GroupingConfig:
     normal_tolerance_deg: float = 20.0
     min_inliers: int = 5
     max_instances: int = 2
-    alternatives: int = 3
+    alternatives: int = 2
+    rescore: int = 20
+    min_normal_spread_deg: float = 15.0
     grid_per_diameter: float = 12.0
 
     def __post_init__(self):
         if self.method not in ("ransac",):
             raise ValueError(f"GroupingConfig.method {self.method!r} is not available; choose 'ransac'")
         _positive(self, "iterations", "inlier_distance", "edge_tolerance", "normal_tolerance_deg",
-                  "min_inliers", "max_instances", "grid_per_diameter")
+                  "min_inliers", "max_instances", "grid_per_diameter", "rescore")
         if self.alternatives < 0:
             raise ValueError(f"GroupingConfig.alternatives must be >= 0, got {self.alternatives}")
 
@@ -116,9 +118,10 @@ class RefineConfig:
     iterations: int = 30
     max_distance: float = 0.012
     kernel: float = 0.006
+    max_per_model: int = 6
 
     def __post_init__(self):
-        _positive(self, "iterations", "max_distance", "kernel")
+        _positive(self, "iterations", "max_distance", "kernel", "max_per_model")
 
 
 @dataclass(frozen=True)
@@ -237,10 +240,13 @@ FIELD_DOCS = {
     "grouping.min_inliers": "distinct scene keypoints a hypothesis needs",
     "grouping.max_instances": "instances of one model searched per cluster",
     "grouping.alternatives": "extra distinct poses kept per round for verification to choose from",
+    "grouping.min_normal_spread_deg": "a triplet needs a normal this far from the others (0: off)",
+    "grouping.rescore": "best triplet poses refit and re-ranked by geometric overlap with the scene",
     "grouping.grid_per_diameter": "scene keypoints used for grouping are at least diameter / this apart",
     "refine.iterations": "ICP iterations at most",
     "refine.max_distance": "m; ICP correspondence distance",
     "refine.kernel": "m; Tukey kernel width of the point-to-plane residual",
+    "refine.max_per_model": "raw hypotheses per model refined by ICP (best first look first)",
     "verify.depth_tolerance": "m; rendered vs measured depth agreement",
     "verify.min_score": "acceptance threshold on the verification score",
     "verify.min_supported": "pixels that must agree with the model",

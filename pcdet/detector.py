@@ -13,6 +13,7 @@ from .config import PipelineConfig
 from .features import fpfh
 from .frame import Frame
 from .grouping import Hypothesis, ransac_instances
+from .grouping.ransac import Overlap
 from .grouping.pairs import scene_pairs
 from .keypoints import select_keypoints
 from .matching import match_features
@@ -100,6 +101,7 @@ class Detector:
         hyps: list[Hypothesis] = []
         seeds = np.random.SeedSequence(cfg.seed).spawn(len(self.library))
         kpts, knrm, klab = scene.points[kp], scene.normals[kp], scene.labels[kp]
+        scene_tree = cKDTree(scene.points) if len(scene.points) else None
         pair_cache: dict[tuple[float, float], tuple] = {}
         for i in models:
             m = self.library[i]
@@ -115,22 +117,27 @@ class Detector:
                     pair_cache[key] = (sub, scene_pairs(kpts[sub], knrm[sub], klab[sub], m.diameter))
                 sub, pairs = pair_cache[key]
                 rng = np.random.default_rng(seeds[i])
+                overlap = Overlap(*self._icp_pts[i], scene_tree, 0.75 * cfg.grouping.inlier_distance)
                 hyps += ransac_instances(kpts[sub], c.model[sub], m.kp_points, m.kp_normals, pairs, m.diameter,
-                                         cfg.grouping, rng, klab[sub], i, m.points)
+                                         cfg.grouping, rng, klab[sub], i, m.points, overlap, knrm[sub])
         stats["hypotheses"] = len(hyps)
         if len(hyps) == 0 or len(scene.points) == 0:
             return DetectionResult([], tm.t, stats)
         with tm("verify"):
             # cheap first look at the raw poses: only plausible ones are worth an ICP
             pre = [verify(self.library[h.model_index], h.T_cam_model, frame.depth, frame.camera, cfg.verify,
-                          cfg.preprocess.voxel, scene.plane) for h in hyps]
+                          cfg.preprocess.voxel, scene.plane, stride=2) for h in hyps]
+        # ICP for the best few raw hypotheses of each model only
         keep = [j for j, v in enumerate(pre) if v.score >= cfg.verify.prefilter and v.n_supported > 0]
+        per_model: dict[int, list[int]] = {}
+        for j in sorted(keep, key=lambda j: (-pre[j].score, j)):
+            per_model.setdefault(hyps[j].model_index, []).append(j)
+        keep = sorted(j for js in per_model.values() for j in js[: cfg.refine.max_per_model])
         hyps = [hyps[j] for j in keep]
         stats["refined"] = len(hyps)
         with tm("refine"):
-            tree = cKDTree(scene.points)
             regs = [icp(self._icp_pts[h.model_index][0], scene.points, scene.normals, h.T_cam_model, cfg.refine,
-                        self._icp_pts[h.model_index][1], tree, np.zeros(3)) for h in hyps]
+                        self._icp_pts[h.model_index][1], scene_tree, np.zeros(3)) for h in hyps]
         with tm("verify"):
             vers: list[Verification] = [verify(self.library[h.model_index], r.T_target_source, frame.depth,
                                                frame.camera, cfg.verify, cfg.preprocess.voxel, scene.plane)

@@ -10,6 +10,8 @@ correspondences and every correspondence on the surface it explains before the n
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -61,7 +63,8 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
 def ransac_instances(scene_pts: np.ndarray, cand: np.ndarray, model_pts: np.ndarray, model_nrm: np.ndarray,
                      pairs: ScenePairs, diameter: float, cfg: GroupingConfig, rng: np.random.Generator,
                      scene_labels: np.ndarray | None = None, model_index: int = 0,
-                     model_cloud: np.ndarray | None = None) -> list[Hypothesis]:
+                     model_cloud: np.ndarray | None = None, overlap: "Overlap | None" = None,
+                     scene_nrm: np.ndarray | None = None) -> list[Hypothesis]:
     """Hypotheses for up to ``cfg.max_instances`` instances of one model in each scene cluster.
 
     Parameters
@@ -70,6 +73,8 @@ def ransac_instances(scene_pts: np.ndarray, cand: np.ndarray, model_pts: np.ndar
     model_pts, model_nrm : (K, 3) model keypoints (m) and normals.  pairs : scene keypoint pairs.
     diameter : model diameter (m).  scene_labels : (S,) cluster of each keypoint (None: one cluster).
     model_cloud : (P, 3) model samples used to clear the surface a found instance explains.
+    overlap : when given, the best triplet poses are re-ranked by how much of the model they lay on the scene.
+    scene_nrm : (S, 3) scene keypoint normals; with them, triplets on one flat patch are not drawn.
 
     Each hypothesis's ``inliers`` are correspondence indices ``s * k + r``. Clusters are searched in label
     order, so the result does not depend on anything but the inputs and ``rng``.
@@ -80,13 +85,15 @@ def ransac_instances(scene_pts: np.ndarray, cand: np.ndarray, model_pts: np.ndar
         return out
     start, deg, nbr = compatibility_graph(pairs, cand, model_pts, model_nrm, diameter, cfg)
     cs = np.repeat(scene_pts, k, axis=0)  # scene point of each correspondence
+    cn = None if scene_nrm is None else np.repeat(scene_nrm, k, axis=0)
     cm = model_pts[np.maximum(cand.reshape(-1), 0)]  # model point of each correspondence
     active = (cand.reshape(-1) >= 0) & (deg >= 2)
     labels = np.zeros(S, np.int64) if scene_labels is None else np.asarray(scene_labels)
     clabel = np.repeat(labels, k)
     for lab in np.unique(labels[active.reshape(S, k).any(axis=1)]):
         for _ in range(cfg.max_instances):
-            found = _one_instance(cs, cm, k, start, deg, nbr, active & (clabel == lab), diameter, cfg, rng)
+            found = _one_instance(cs, cm, k, start, deg, nbr, active & (clabel == lab), diameter, cfg, rng, overlap,
+                                  cn)
             if not found:
                 break
             out += [Hypothesis(model_index, T, inl) for T, inl in found]
@@ -98,10 +105,35 @@ def ransac_instances(scene_pts: np.ndarray, cand: np.ndarray, model_pts: np.ndar
     return out
 
 
-def _one_instance(cs, cm, k, start, deg, nbr, active, diameter, cfg, rng) -> list[tuple[np.ndarray, np.ndarray]]:
+@dataclass
+class Overlap:
+    """Geometric overlap of a posed model with the scene (the largest-common-pointset score of 4PCS):
+    the number of model samples facing the camera that lie within ``distance`` of a scene point.
+
+    points, normals : (P, 3) model samples and outward normals (model frame, m); scene_tree : KD-tree of the
+    scene points (camera frame).
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    scene_tree: cKDTree
+    distance: float
+
+    def __call__(self, T: np.ndarray) -> int:
+        P = self.points @ T[:3, :3].T + T[:3, 3]
+        front = ((self.normals @ T[:3, :3].T) * P).sum(axis=1) < 0
+        d, _ = self.scene_tree.query(P[front], distance_upper_bound=self.distance)
+        return int(np.isfinite(d).sum())
+
+
+def _one_instance(cs, cm, k, start, deg, nbr, active, diameter, cfg, rng, overlap=None, cn=None
+                  ) -> list[tuple[np.ndarray, np.ndarray]]:
     """The best triplet poses among ``active`` correspondences, each refit on its inliers: the best first,
     then up to ``cfg.alternatives`` others that differ from every pose before them (rotation > 10 degrees or
-    translation > a fifth of the diameter), for verification to choose from. Empty when none has support."""
+    translation > a fifth of the diameter), for verification to choose from. Empty when none has support.
+
+    Triplets are ranked by the distinct scene keypoints they explain among the seed's compatible partners; with
+    an ``overlap`` score, the ``cfg.rescore`` best of them are refit and re-ranked by it."""
     pool = np.flatnonzero(active)
     if len(pool) < 3:
         return []
@@ -117,6 +149,14 @@ def _one_instance(cs, cm, k, start, deg, nbr, active, diameter, cfg, rng) -> lis
     ds = np.linalg.norm(Sx[:, 1] - Sx[:, 2], axis=1)
     dm = np.linalg.norm(Px[:, 1] - Px[:, 2], axis=1)
     good = (np.abs(ds - dm) < cfg.edge_tolerance) & (ds > 0.1 * diameter)
+    if cn is not None and cfg.min_normal_spread_deg > 0:
+        # three points on one flat patch carry no shape: their descriptors match any flat part of the model,
+        # and every such triplet is rigidly consistent. Ask for at least one normal off the others.
+        Nx = cn[tri]
+        c = np.cos(np.radians(cfg.min_normal_spread_deg))
+        flat = (((Nx[:, 0] * Nx[:, 1]).sum(1) > c) & ((Nx[:, 0] * Nx[:, 2]).sum(1) > c)
+                & ((Nx[:, 1] * Nx[:, 2]).sum(1) > c))
+        good &= ~flat
     tri, Sx, Px = tri[good], Sx[good], Px[good]
     if len(tri) == 0:
         return []
@@ -131,41 +171,60 @@ def _one_instance(cs, cm, k, start, deg, nbr, active, diameter, cfg, rng) -> lis
     key = np.unique(rows[hit] * n_s + cols[hit] // k)
     score = np.bincount(key // n_s, minlength=len(tri))
     order = np.lexsort((np.arange(len(tri)), -score))  # best first, ties by draw order: deterministic
-    found: list[tuple[np.ndarray, np.ndarray]] = []
+    order = order[score[order] + 3 >= cfg.min_inliers]
+    limit = cfg.rescore if overlap is not None else cfg.alternatives + 1
+    lead = _distinct(T, order, diameter, limit)
+    if len(lead) == 0:
+        return []
+    Tr, inls = _refit_batch(T[lead], cm[pool], cs[pool], cfg.inlier_distance)
+    n_pts = np.array([len(np.unique(pool[i] // k)) for i in inls])
+    keep = np.flatnonzero(n_pts >= cfg.min_inliers)
+    if len(keep) == 0:
+        return []
+    if overlap is not None and len(keep) > 1:
+        lcp = np.array([overlap(Tr[i]) for i in keep])
+        keep = keep[np.lexsort((keep, -lcp))]
+    keep = _distinct(Tr, keep, diameter, cfg.alternatives + 1)
+    return [(Tr[i], pool[inls[i]]) for i in keep]
+
+
+def _distinct(T: np.ndarray, order: np.ndarray, diameter: float, limit: int) -> np.ndarray:
+    """The first ``limit`` entries of ``order`` (indices into T) whose pose differs from every earlier kept one
+    (rotation by more than 10 degrees or translation by more than a fifth of the diameter)."""
+    kept: list[int] = []
+    cos10 = np.cos(np.radians(10))
     for b in order:
-        if len(found) > cfg.alternatives or score[b] + 3 < cfg.min_inliers:
+        if kept:
+            K = T[kept]
+            c = (np.einsum("nij,ij->n", K[:, :3, :3], T[b, :3, :3]) - 1) / 2  # cos of the relative rotation
+            close = np.linalg.norm(K[:, :3, 3] - T[b, :3, 3], axis=1) < 0.2 * diameter
+            if np.any((c > cos10) & close):
+                continue
+        kept.append(int(b))
+        if len(kept) >= limit:
             break
-        if any(_same_pose(T[b], F, diameter) for F, _ in found):
-            continue
-        Tb, inl = _refit(T[b], cm, cs, active, cfg.inlier_distance)
-        if len(np.unique(inl // k)) < cfg.min_inliers:
-            if not found:
-                return []
-            continue
-        if not any(_same_pose(Tb, F, diameter) for F, _ in found):
-            found.append((Tb, inl))
-    return found
+    return np.array(kept, np.int64)
 
 
-def _refit(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, active: np.ndarray, tau: float):
-    """Robust refit of ``T`` on the active correspondences (model cm -> scene cs): Tukey-weighted Kabsch
-    with the kernel shrinking from ``tau`` to ``tau / 2``, so that wrong matches that happen to fall near the
-    object do not pull the pose. Returns the pose and the correspondences within ``tau`` of it."""
+def _refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Robust refit of B poses (B, 4, 4) on correspondences (model cm -> scene cs, (M, 3) each): Tukey-weighted
+    Kabsch with the kernel shrinking from ``tau`` to ``tau / 2``, so that wrong matches that happen to fall
+    near the object do not pull a pose. Returns the poses and, for each, the indices within ``tau`` of it."""
+    T = T.copy()
     for scale in (1.0, 1.0, 0.75, 0.5, 0.5):
-        d = np.linalg.norm(transform(T, cm) - cs, axis=1)
+        pred = np.einsum("bij,mj->bmi", T[:, :3, :3], cm) + T[:, None, :3, 3]
+        d = np.linalg.norm(pred - cs[None], axis=2)
         c = tau * scale
-        sel = np.flatnonzero(active & (d < c))
-        if len(sel) < 3:
+        inside = d < c
+        ok = inside.sum(axis=1) >= 3
+        if not ok.any():
             break
-        w = (1 - (d[sel] / c) ** 2) ** 2
-        T = kabsch(cm[sel], cs[sel], w + 1e-12)
-    d = np.linalg.norm(transform(T, cm) - cs, axis=1)
-    return T, np.flatnonzero(active & (d < tau))
-
-
-def _same_pose(A: np.ndarray, B: np.ndarray, diameter: float) -> bool:
-    c = (np.trace(A[:3, :3] @ B[:3, :3].T) - 1) / 2
-    return c > np.cos(np.radians(10)) and np.linalg.norm(A[:3, 3] - B[:3, 3]) < 0.2 * diameter
+        w = np.where(inside[ok], (1 - (d[ok] / c) ** 2) ** 2, 0.0) + 1e-12
+        n = int(ok.sum())
+        T[ok] = kabsch_batch(np.broadcast_to(cm, (n, *cm.shape)), np.broadcast_to(cs, (n, *cs.shape)), w)
+    pred = np.einsum("bij,mj->bmi", T[:, :3, :3], cm) + T[:, None, :3, 3]
+    d = np.linalg.norm(pred - cs[None], axis=2)
+    return T, [np.flatnonzero(row < tau) for row in d]
 
 
 def _ramp(counts: np.ndarray) -> np.ndarray:

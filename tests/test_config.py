@@ -1,0 +1,42 @@
+"""Pipeline presets: default.toml sets every parameter to the code's defaults; bad files fail clearly."""
+import dataclasses
+
+import pytest
+
+from pcdet.config import PIPELINES_DIR, PipelineConfig, dump_toml, load_pipeline
+from pcdet.errors import InputError
+
+
+def test_default_preset_equals_code_defaults():
+    assert load_pipeline("default") == PipelineConfig()
+    text = (PIPELINES_DIR / "default.toml").read_text()
+    for f in dataclasses.fields(PipelineConfig):
+        if f.name != "seed":
+            for k in dataclasses.asdict(getattr(PipelineConfig(), f.name)):
+                assert f"\n{k} = " in text, f"{f.name}.{k} missing from default.toml"
+
+
+def test_dump_roundtrip(tmp_path):
+    cfg = PipelineConfig().replace(seed=7, grouping={"iterations": 123})
+    p = tmp_path / "p.toml"
+    p.write_text(dump_toml(cfg))
+    assert load_pipeline(p) == cfg
+
+
+@pytest.mark.parametrize("text, words", [
+    ("[grouping]\nbogus = 1\n", "unknown field(s) ['bogus'] in [grouping]"),
+    ("[nope]\n", "unknown pipeline section 'nope'"),
+    ("[preprocess]\nvoxel = -1\n", "voxel must be > 0"),
+    ("[grouping\n", "not valid TOML"),
+])
+def test_bad_presets(tmp_path, text, words):
+    p = tmp_path / "bad.toml"
+    p.write_text(text)
+    with pytest.raises(InputError) as e:
+        load_pipeline(p)
+    assert "bad.toml" in str(e.value) and words in str(e.value)
+
+
+def test_unknown_preset_lists_available():
+    with pytest.raises(FileNotFoundError, match="available: .*default"):
+        load_pipeline("no_such_preset")

@@ -1,0 +1,34 @@
+"""Model-to-scan registration with no initial guess on the Stanford bunny's real range scans."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from pcdet.model import load_geometry
+from pcdet.register import register
+
+from .conftest import shared
+
+
+def _conf(d):
+    """bun.conf: scan points X map into the model frame by X_model = R(q)^T X + t (see SOURCE.txt)."""
+    poses = {}
+    for line in (d / "bun.conf").read_text().splitlines():
+        w = line.split()
+        if w and w[0] == "bmesh":
+            T = np.eye(4)
+            T[:3, :3] = Rotation.from_quat([float(v) for v in w[5:9]]).as_matrix().T
+            T[:3, 3] = [float(v) for v in w[2:5]]
+            poses[w[1]] = T  # T_model_scan
+    return poses
+
+
+@pytest.mark.real
+@pytest.mark.parametrize("scan", ["bun000.ply", "bun045.ply"])
+def test_bunny_within_5mm(scan):
+    d = shared("bunny")
+    T_scan_model = np.linalg.inv(_conf(d)[scan])
+    r = register(d / "bun_zipper_res3.ply", d / scan)
+    X = load_geometry(d / "bun_zipper_res3.ply").vertices
+    err = np.linalg.norm((X @ r.T_target_source[:3, :3].T + r.T_target_source[:3, 3])
+                         - (X @ T_scan_model[:3, :3].T + T_scan_model[:3, 3]), axis=1)
+    assert err.max() < 0.005, f"largest model-point displacement {err.max() * 1000:.2f} mm"
