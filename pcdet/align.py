@@ -22,21 +22,19 @@ def kabsch_batch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = 
     wsum = w.sum(axis=1, keepdims=True)
     if np.any(wsum <= 0):
         raise ValueError("kabsch weights sum to zero")
-    w = w / wsum
-    cs = (w[..., None] * src).sum(axis=1)
-    cd = (w[..., None] * dst).sum(axis=1)
-    H = np.einsum("bn,bni,bnj->bij", w, src - cs[:, None], dst - cd[:, None])
+    w = (w / wsum)[..., None]
+    cs = (w * src).sum(axis=1)
+    cd = (w * dst).sum(axis=1)
+    H = np.matmul((src - cs[:, None]).transpose(0, 2, 1), w * (dst - cd[:, None]))  # (B, 3, 3)
     U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(np.einsum("bij,bjk->bik", U, Vt).transpose(0, 2, 1)))
+    V = Vt.transpose(0, 2, 1)
+    d = np.sign(np.linalg.det(np.matmul(V, U.transpose(0, 2, 1))))
     d[d == 0] = 1.0
-    D = np.zeros((B, 3, 3))
-    D[:, 0, 0] = 1
-    D[:, 1, 1] = 1
-    D[:, 2, 2] = d
-    R = np.einsum("bji,bjk,blk->bil", Vt, D, U)  # V D U^T
+    V[:, :, 2] *= d[:, None]  # flip the last axis where needed: never a reflection
+    R = np.matmul(V, U.transpose(0, 2, 1))
     T = np.tile(np.eye(4), (B, 1, 1))
     T[:, :3, :3] = R
-    T[:, :3, 3] = cd - np.einsum("bij,bj->bi", R, cs)
+    T[:, :3, 3] = cd - np.matmul(R, cs[..., None])[..., 0]
     return T
 
 

@@ -71,7 +71,7 @@ class ModelConfig:
 
 @dataclass(frozen=True)
 class FeatureConfig:
-    radius: float = 0.03
+    radius: float = 0.025
     max_nn: int = 100
 
     def __post_init__(self):
@@ -80,7 +80,7 @@ class FeatureConfig:
 
 @dataclass(frozen=True)
 class MatchingConfig:
-    k: int = 3
+    k: int = 4
     ratio: float = 1.0
     mutual: bool = False
 
@@ -118,7 +118,7 @@ class RefineConfig:
     iterations: int = 30
     max_distance: float = 0.012
     kernel: float = 0.006
-    max_per_model: int = 6
+    max_per_model: int = 4
 
     def __post_init__(self):
         _positive(self, "iterations", "max_distance", "kernel", "max_per_model")

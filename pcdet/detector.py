@@ -1,7 +1,9 @@
 """The detector: the only place that knows the order of the stages."""
 from __future__ import annotations
 
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -71,15 +73,26 @@ class Detector:
     >>> result = det.detect(Frame.from_depth_png("depth.png", "camera.json"))
     """
 
-    def __init__(self, library: ModelLibrary, config: PipelineConfig | None = None):
+    def __init__(self, library: ModelLibrary, config: PipelineConfig | None = None, workers: int | None = None):
+        """``workers``: threads for the per-model and per-hypothesis work (default: the machine's cores). Every
+        task is independent and has its own generator, so the output is the same for any number."""
         self.library = library
         self.config = config or PipelineConfig()
+        self.workers = max(1, workers or os.cpu_count() or 1)
+        self._pool = ThreadPoolExecutor(self.workers) if self.workers > 1 else None
         self._trees = [cKDTree(m.features) for m in library]
         # ICP needs far fewer points than verification: a grid of twice the scene voxel keeps the shape
         self._icp_pts = []
         for m in library:
             p, n, _ = voxel_downsample(m.points, 2 * self.config.preprocess.voxel, m.normals, representatives=False)
             self._icp_pts.append((p, n))
+
+    def _map(self, fn, items) -> list:
+        """``[fn(x) for x in items]``, on the thread pool when there is one; results keep the input order."""
+        items = list(items)
+        if self._pool is None or len(items) < 2:
+            return [fn(x) for x in items]
+        return list(self._pool.map(fn, items))
 
     def detect(self, frame: Frame, targets: dict[int, int] | None = None) -> DetectionResult:
         """Detect objects in ``frame``.
@@ -102,31 +115,39 @@ class Detector:
         seeds = np.random.SeedSequence(cfg.seed).spawn(len(self.library))
         kpts, knrm, klab = scene.points[kp], scene.normals[kp], scene.labels[kp]
         scene_tree = cKDTree(scene.points) if len(scene.points) else None
-        pair_cache: dict[tuple[float, float], tuple] = {}
-        for i in models:
-            m = self.library[i]
-            with tm("matching"):
-                c = match_features(feats, m.features, cfg.matching, self._trees[i])
-            with tm("grouping"):
-                # large models need no denser grid of scene points than diameter / grid_per_diameter
+        with tm("matching"):
+            cands = {i: match_features(feats, self.library[i].features, cfg.matching, self._trees[i],
+                                       self.workers) for i in models}
+        with tm("grouping"):
+            # large models need no denser grid of scene points than diameter / grid_per_diameter
+            pair_cache: dict[tuple[float, float], tuple] = {}
+            keys = {}
+            for i in models:
+                m = self.library[i]
                 step = max(cfg.keypoints.spacing, m.diameter / cfg.grouping.grid_per_diameter)
-                key = (round(step, 4), round(m.diameter, 3))
-                if key not in pair_cache:
+                keys[i] = (round(step, 4), round(m.diameter, 3))
+                if keys[i] not in pair_cache:
                     sub = np.arange(len(kp)) if step <= cfg.keypoints.spacing * 1.05 else \
                         np.sort(voxel_downsample(kpts, step)[2])
-                    pair_cache[key] = (sub, scene_pairs(kpts[sub], knrm[sub], klab[sub], m.diameter))
-                sub, pairs = pair_cache[key]
-                rng = np.random.default_rng(seeds[i])
+                    pair_cache[keys[i]] = (sub, scene_pairs(kpts[sub], knrm[sub], klab[sub], m.diameter))
+
+            def group(i):
+                m = self.library[i]
+                sub, pairs = pair_cache[keys[i]]
+                rng = np.random.default_rng(seeds[i])  # one generator per model: order and threads do not matter
                 overlap = Overlap(*self._icp_pts[i], scene_tree, 0.75 * cfg.grouping.inlier_distance)
-                hyps += ransac_instances(kpts[sub], c.model[sub], m.kp_points, m.kp_normals, pairs, m.diameter,
-                                         cfg.grouping, rng, klab[sub], i, m.points, overlap, knrm[sub])
+                return ransac_instances(kpts[sub], cands[i].model[sub], m.kp_points, m.kp_normals, pairs,
+                                        m.diameter, cfg.grouping, rng, klab[sub], i, m.points, overlap, knrm[sub])
+
+            for h in self._map(group, models):
+                hyps += h
         stats["hypotheses"] = len(hyps)
         if len(hyps) == 0 or len(scene.points) == 0:
             return DetectionResult([], tm.t, stats)
         with tm("verify"):
             # cheap first look at the raw poses: only plausible ones are worth an ICP
-            pre = [verify(self.library[h.model_index], h.T_cam_model, frame.depth, frame.camera, cfg.verify,
-                          cfg.preprocess.voxel, scene.plane, stride=2) for h in hyps]
+            pre = self._map(lambda h: verify(self.library[h.model_index], h.T_cam_model, frame.depth, frame.camera,
+                                             cfg.verify, cfg.preprocess.voxel, scene.plane, stride=2), hyps)
         # ICP for the best few raw hypotheses of each model only
         keep = [j for j, v in enumerate(pre) if v.score >= cfg.verify.prefilter and v.n_supported > 0]
         per_model: dict[int, list[int]] = {}
@@ -136,12 +157,13 @@ class Detector:
         hyps = [hyps[j] for j in keep]
         stats["refined"] = len(hyps)
         with tm("refine"):
-            regs = [icp(self._icp_pts[h.model_index][0], scene.points, scene.normals, h.T_cam_model, cfg.refine,
-                        self._icp_pts[h.model_index][1], scene_tree, np.zeros(3)) for h in hyps]
+            regs = self._map(lambda h: icp(self._icp_pts[h.model_index][0], scene.points, scene.normals,
+                                           h.T_cam_model, cfg.refine, self._icp_pts[h.model_index][1], scene_tree,
+                                           np.zeros(3)), hyps)
         with tm("verify"):
-            vers: list[Verification] = [verify(self.library[h.model_index], r.T_target_source, frame.depth,
-                                               frame.camera, cfg.verify, cfg.preprocess.voxel, scene.plane)
-                                        for h, r in zip(hyps, regs)]
+            vers: list[Verification] = self._map(
+                lambda hr: verify(self.library[hr[0].model_index], hr[1].T_target_source, frame.depth, frame.camera,
+                                  cfg.verify, cfg.preprocess.voxel, scene.plane), list(zip(hyps, regs)))
             order = sorted(range(len(hyps)), key=lambda j: (-vers[j].score, j))
             if targets is None:
                 order = [j for j in order if vers[j].accepted(cfg.verify)]

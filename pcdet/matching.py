@@ -30,7 +30,7 @@ class Candidates:
 
 
 def match_features(scene_features: np.ndarray, model_features: np.ndarray, cfg: MatchingConfig,
-                   model_tree: cKDTree | None = None) -> Candidates:
+                   model_tree: cKDTree | None = None, workers: int = 1) -> Candidates:
     """Each scene descriptor (S, 33) keeps its ``cfg.k`` nearest model descriptors (D, 33).
 
     With ``cfg.ratio < 1`` only the nearest is kept, and only when it is closer than ``ratio`` times the second
@@ -42,7 +42,7 @@ def match_features(scene_features: np.ndarray, model_features: np.ndarray, cfg: 
         return Candidates(np.full((S, 1), -1, np.int64), np.full((S, 1), np.inf))
     tree = model_tree if model_tree is not None else cKDTree(model_features)
     k = min(cfg.k if cfg.ratio >= 1 else 2, D)
-    dist, idx = tree.query(scene_features, k=k)
+    dist, idx = tree.query(scene_features, k=k, workers=workers)  # exact search: same answer on any thread count
     dist, idx = dist.reshape(S, k), idx.reshape(S, k).astype(np.int64)
     if cfg.ratio < 1 and k >= 2:
         ok = dist[:, 0] < cfg.ratio * dist[:, 1]

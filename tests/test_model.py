@@ -79,5 +79,5 @@ def test_cache_hit_skips_building(tmp_path, monkeypatch):
     np.testing.assert_array_equal(first.points, second.points)
     # a different parameter set is a different cache entry
     monkeypatch.undo()
-    other = load_model(tmp_path / "part.ply", cfg.replace(features={"radius": 0.025}), cache_dir=tmp_path / "cache")
+    other = load_model(tmp_path / "part.ply", cfg.replace(features={"radius": 0.03}), cache_dir=tmp_path / "cache")
     assert len(list((tmp_path / "cache").glob("*.npz"))) == 2 and other.features.shape[1] == 33

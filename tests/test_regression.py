@@ -1,8 +1,8 @@
 """Synthetic regression suite: 20 scenes, 4 objects each, from models/, fixed seed.
 
-Issue 2 asks: with the ground-truth object ids given (BOP localisation), recall at ADD < 0.1 d of at
-least 0.85; without them, precision >= 0.9 at recall >= 0.8 (ADD-S < 0.1 d). This suite measures 0.81 and
-0.87 at 0.81 (flange and flat-face views are the misses), so the asserts guard the measured level, 0.03 below.
+Thresholds (issue 2): with the ground-truth object ids given (BOP localisation), recall at ADD < 0.1 d of at
+least 0.85; without them, precision >= 0.9 at recall >= 0.8 (ADD-S < 0.1 d). Measured on this suite: 0.875;
+0.908 at 0.863. Other seeds land on both sides of the bar (seed 7: 0.95; seed 99: 0.825), see the README.
 """
 import numpy as np
 import pytest
@@ -32,11 +32,11 @@ def _estimates(ds, det, targets):
 def test_localisation_recall(suite, library):
     ev = evaluate(suite, _estimates(suite, Detector(library), True), library)
     assert ev.overall["instances"] == 80
-    assert ev.overall["recall_add"] >= 0.78, ev.overall  # measured 0.81; issue 2 asks 0.85 (not met)
+    assert ev.overall["recall_add"] >= 0.85, ev.overall
 
 
 @pytest.mark.slow
 def test_detection_precision_and_recall(suite, library):
     ev = evaluate(suite, _estimates(suite, Detector(library), False), library)
-    assert ev.overall["recall_adds"] >= 0.78, ev.overall  # measured 0.81
-    assert ev.overall["precision_adds"] >= 0.84, ev.overall  # measured 0.87; issue 2 asks 0.9 (not met)
+    assert ev.overall["recall_adds"] >= 0.8, ev.overall
+    assert ev.overall["precision_adds"] >= 0.9, ev.overall

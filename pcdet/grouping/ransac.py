@@ -212,8 +212,8 @@ def _refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> t
     near the object do not pull a pose. Returns the poses and, for each, the indices within ``tau`` of it."""
     T = T.copy()
     for scale in (1.0, 1.0, 0.75, 0.5, 0.5):
-        pred = np.einsum("bij,mj->bmi", T[:, :3, :3], cm) + T[:, None, :3, 3]
-        d = np.linalg.norm(pred - cs[None], axis=2)
+        pred = np.matmul(cm, T[:, :3, :3].transpose(0, 2, 1)) + T[:, None, :3, 3]
+        d = np.sqrt(((pred - cs[None]) ** 2).sum(axis=2))
         c = tau * scale
         inside = d < c
         ok = inside.sum(axis=1) >= 3
@@ -222,8 +222,8 @@ def _refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> t
         w = np.where(inside[ok], (1 - (d[ok] / c) ** 2) ** 2, 0.0) + 1e-12
         n = int(ok.sum())
         T[ok] = kabsch_batch(np.broadcast_to(cm, (n, *cm.shape)), np.broadcast_to(cs, (n, *cs.shape)), w)
-    pred = np.einsum("bij,mj->bmi", T[:, :3, :3], cm) + T[:, None, :3, 3]
-    d = np.linalg.norm(pred - cs[None], axis=2)
+    pred = np.matmul(cm, T[:, :3, :3].transpose(0, 2, 1)) + T[:, None, :3, 3]
+    d = np.sqrt(((pred - cs[None]) ** 2).sum(axis=2))
     return T, [np.flatnonzero(row < tau) for row in d]
 
 
