@@ -95,17 +95,20 @@ class O3DCareful(O3DTutorial):
             c = objs.select_by_index(np.flatnonzero(labels == lab))
             if len(c.points) >= 60:
                 clusters.append(_prep(c, VOXEL))
-        out = []
-        for oid, n in targets.items():
+        # every (model, cluster) pair registered; clusters then go to models greedily by ICP fitness, each once
+        pairs = []
+        for oid in targets:
             src, f = self.models[oid]
-            cands = []
             for ci, (c, cf) in enumerate(clusters):
-                if len(c.points) < 10:
-                    continue
                 T, fit = _o3d_register(src, f, c, cf, VOXEL)
-                cands.append((fit, ci, T))
-            cands.sort(key=lambda x: (-x[0], x[1]))
-            out += [(oid, fit, np.asarray(T)) for fit, _, T in cands[:n]]
+                pairs.append((fit, oid, ci, np.asarray(T)))
+        pairs.sort(key=lambda x: (-x[0], x[1], x[2]))
+        left, used, out = dict(targets), set(), []
+        for fit, oid, ci, T in pairs:
+            if left[oid] > 0 and ci not in used:
+                out.append((oid, fit, T))
+                left[oid] -= 1
+                used.add(ci)
         return out
 
 
