@@ -50,7 +50,7 @@ def _library(models: Path, cfg, units: str):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         with console.status(f"loading models from {models}"):
-            lib = ModelLibrary.from_folder(models, cfg, units=units)
+            lib = ModelLibrary.from_path(models, cfg, units=units)
     for w in caught:
         console.print(f"[yellow]warning:[/] {escape(str(w.message))}", highlight=False, soft_wrap=True)
     for n in lib.notes:
@@ -74,7 +74,8 @@ def _guard(fn):
 
 @app.command()
 @_guard
-def detect(models: Path = typer.Option(MODELS_DIR, help="Folder of object models (meshes or clouds; BOP models/)."),
+def detect(models: Path = typer.Option(MODELS_DIR, help="Folder of object models (meshes or clouds; BOP "
+                                       "models/), or one model file."),
            depth: Optional[Path] = typer.Option(None, help="16-bit depth PNG."),
            camera: Optional[Path] = typer.Option(None, help="Camera JSON (fx, fy, cx, cy, width, height, "
                                                  "depth_scale; or BOP cam_K/depth_scale)."),

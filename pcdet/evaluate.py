@@ -3,7 +3,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 
 from .datasets.bop import BopDataset
 from .metrics import InstanceErrors, match_image, summarize

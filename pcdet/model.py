@@ -420,5 +420,14 @@ class ModelLibrary:
         return cls(models)
 
     @classmethod
+    def from_path(cls, path, cfg: PipelineConfig | None = None, units="auto",
+                  cache_dir: Path | str | None | bool = None, progress=None) -> "ModelLibrary":
+        """A folder of models (``from_folder``) or a single model file (id 1)."""
+        path = Path(path)
+        if path.is_file():
+            return cls.from_files([path], cfg, units, cache_dir)
+        return cls.from_folder(path, cfg, units, cache_dir, progress)
+
+    @classmethod
     def from_files(cls, paths, cfg: PipelineConfig | None = None, units="auto", cache_dir=None) -> "ModelLibrary":
         return cls([load_model(p, cfg, units, i, None, cache_dir) for i, p in enumerate(paths, start=1)])

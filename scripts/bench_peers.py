@@ -189,8 +189,8 @@ def main():
         print(f"{name:14s} recall ADD-S {ev['recall_adds']:.3f}  ADD {ev['recall_add']:.3f}  "
               f"median {np.median(times):.3f} s/frame", flush=True)
     base = next((r for r in rows if r[0] == "pcdet"), rows[0])
-    print(f"\n{len(frames)} frames, {sum(len(t) for _, _, t in frames) and sum(sum(t.values()) for _, _, t in frames)} "
-          f"instances, 640x480, {len(lib)}-model library, seed {args.seed}")
+    n_inst = sum(sum(t.values()) for _, _, t in frames)
+    print(f"\n{len(frames)} frames, {n_inst} instances, 640x480, {len(lib)}-model library, seed {args.seed}")
     print(f"| method | recall ADD-S | recall ADD | median s/frame | {base[0]} recall / method | "
           f"method time / {base[0]} |")
     print("|---|---|---|---|---|---|")

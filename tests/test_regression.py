@@ -4,7 +4,6 @@ Thresholds (issue 2): with the ground-truth object ids given (BOP localisation),
 least 0.85; without them, precision >= 0.9 at recall >= 0.8 (ADD-S < 0.1 d). Measured on this suite: 0.875;
 0.908 at 0.863. Other seeds land on both sides of the bar (seed 7: 0.95; seed 99: 0.825), see the README.
 """
-import numpy as np
 import pytest
 
 from pcdet.datasets.bop import BopDataset

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -55,6 +54,7 @@ class BopDataset:
             if not cands:
                 raise InputError("no BOP split folder (scene folders with scene_camera.json) found", root)
             self.split_dir, self.root = cands[0], root
+        self._json: dict[tuple[int, str], dict] = {}
         self.models_dir = self.root / "models" if (self.root / "models").is_dir() else None
         cam = self.root / "camera.json"
         self.base_camera = _read_json(cam) if cam.is_file() else {}
@@ -75,10 +75,13 @@ class BopDataset:
     def scene_dir(self, scene_id: int) -> Path:
         return self.split_dir / f"{scene_id:06d}"
 
-    @lru_cache(maxsize=64)
     def _scene_json(self, scene_id: int, name: str) -> dict:
-        p = self.scene_dir(scene_id) / name
-        return _read_json(p) if p.is_file() else {}
+        """A scene's JSON file, read once per dataset object (an empty dict when the file is absent)."""
+        key = (scene_id, name)
+        if key not in self._json:
+            p = self.scene_dir(scene_id) / name
+            self._json[key] = _read_json(p) if p.is_file() else {}
+        return self._json[key]
 
     def depth_path(self, img: BopImage) -> Path:
         return self.scene_dir(img.scene_id) / "depth" / f"{img.im_id:06d}.png"

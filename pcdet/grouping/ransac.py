@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..align import kabsch, kabsch_batch, transform
+from ..align import kabsch_batch, transform
 from ..config import GroupingConfig
 from .hypothesis import Hypothesis
 from .pairs import ScenePairs, pair_features
