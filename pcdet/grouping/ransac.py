@@ -33,24 +33,30 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
     f0 = pairs.features[:, 0]
     near = (f0 < diameter + cfg.edge_tolerance) & (f0 > 0.1 * diameter)
     a, b, fs = pairs.a[near], pairs.b[near], pairs.features[near]
-    flat = cand.reshape(-1)
-    # expand each scene pair into its k x k candidate pairs, testing the cheap length first
-    r1, r2 = np.divmod(np.arange(k * k), k)
-    ca = (a[:, None] * k + r1).reshape(-1)
-    cb = (b[:, None] * k + r2).reshape(-1)
-    pi = np.repeat(np.arange(len(a)), k * k)
-    ma, mb = flat[ca], flat[cb]
-    ok = (ma >= 0) & (mb >= 0) & (ma != mb)
-    ca, cb, pi, ma, mb = ca[ok], cb[ok], pi[ok], ma[ok], mb[ok]
-    lm = np.linalg.norm(model_pts[mb] - model_pts[ma], axis=1)
-    ok = np.abs(fs[pi, 0] - lm) < cfg.edge_tolerance
-    ca, cb, pi, ma, mb = ca[ok], cb[ok], pi[ok], ma[ok], mb[ok]
-    fm = pair_features(model_pts[ma], model_nrm[ma], model_pts[mb], model_nrm[mb])
-    tol = np.radians(cfg.normal_tolerance_deg)
-    ok = np.abs(fs[pi, 1] - fm[:, 1]) < tol
-    ok &= np.abs(fs[pi, 2] - fm[:, 2]) < tol
-    ok &= np.abs(fs[pi, 3] - fm[:, 3]) < tol
-    ca, cb = ca[ok], cb[ok]
+    mp = np.ascontiguousarray(model_pts, dtype=np.float32)
+    mn = np.ascontiguousarray(model_nrm, dtype=np.float32)
+    tol = np.float32(np.radians(cfg.normal_tolerance_deg))
+    ca_parts, cb_parts = [], []
+    # one pass per (r1, r2) candidate pair: small temporaries, and the cheap length test first
+    for r1 in range(k):
+        ma_all = cand[a, r1]
+        for r2 in range(k):
+            mb_all = cand[b, r2]
+            ok = (ma_all >= 0) & (mb_all >= 0) & (ma_all != mb_all)
+            sel = np.flatnonzero(ok)
+            ma, mb = ma_all[sel], mb_all[sel]
+            dv = mp[mb] - mp[ma]
+            lm = np.sqrt(np.einsum("ij,ij->i", dv, dv))
+            keep = np.abs(fs[sel, 0] - lm) < cfg.edge_tolerance
+            sel, ma, mb = sel[keep], ma[keep], mb[keep]
+            fm = pair_features(mp[ma], mn[ma], mp[mb], mn[mb])
+            d = np.abs(fs[sel, 1:] - fm[:, 1:])
+            keep = (d[:, 0] < tol) & (d[:, 1] < tol) & (d[:, 2] < tol)
+            sel = sel[keep]
+            ca_parts.append(a[sel] * k + r1)
+            cb_parts.append(b[sel] * k + r2)
+    ca = np.concatenate(ca_parts) if ca_parts else np.zeros(0, np.int64)
+    cb = np.concatenate(cb_parts) if cb_parts else np.zeros(0, np.int64)
     src = np.concatenate([ca, cb])
     dst = np.concatenate([cb, ca])
     order = np.lexsort((dst, src))
