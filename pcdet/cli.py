@@ -259,8 +259,9 @@ def eval_cmd(dataset: Path = typer.Argument(..., help="BOP dataset with ground t
 def _print_eval(ev, lib):
     cols = [("instances", "{}", "GT"), ("estimates", "{}", "est"), ("recall_add", "{:.3f}", "ADD"),
             ("recall_adds", "{:.3f}", "ADD-S"), ("precision_adds", "{:.3f}", "prec"),
-            ("ar_mssd", "{:.3f}", "AR_MSSD"), ("ar_mspd", "{:.3f}", "AR_MSPD"), ("ar", "{:.3f}", "AR")]
-    t = Table(title="recall at ADD/ADD-S < 0.1 d, precision (ADD-S), BOP AR (MSSD, MSPD; no VSD)")
+            ("ar_vsd", "{:.3f}", "AR_VSD"), ("ar_mssd", "{:.3f}", "AR_MSSD"), ("ar_mspd", "{:.3f}", "AR_MSPD"),
+            ("ar", "{:.3f}", "AR")]
+    t = Table(title="recall at ADD/ADD-S < 0.1 d, precision (ADD-S), BOP average recall (VSD, MSSD, MSPD)")
     t.add_column("object")
     for _, _, h in cols:
         t.add_column(h, justify="right")

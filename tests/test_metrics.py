@@ -54,3 +54,20 @@ def test_matching_and_summary():
     assert len(errs) == 1 and errs[0].add == pytest.approx(0.0) and fp == 2
     s = metrics.summarize(errs, {1: 0.2}, fp)
     assert s["recall_add"] == 1.0 and s["precision_adds"] == pytest.approx(1 / 3) and s["ar"] == 1.0
+
+
+def test_vsd_known_cases():
+    d_gt = np.zeros((10, 10))
+    d_gt[2:6, 2:6] = 1.0  # 16 px
+    test = np.full((10, 10), 2.0)
+    test[2:6, 2:6] = 1.0
+    # identical estimate: no error at any tolerance
+    np.testing.assert_allclose(metrics.vsd(d_gt, d_gt, test, [0.01, 0.05]), 0.0)
+    # shifted by two columns: union 24 px, 8 px in both -> 16 / 24 wrong at any tau
+    d_est = np.zeros((10, 10))
+    d_est[2:6, 4:8] = 1.0
+    assert metrics.vsd(d_est, d_gt, test, [0.05])[0] == pytest.approx(16 / 24)
+    # same silhouette, 3 cm deeper: hidden behind the measured surface, but the GT-visible pixels it covers
+    # count (BOP'19), so all 16 pixels are compared: wrong at tau = 1 cm, right at tau = 5 cm
+    e = metrics.vsd(np.where(d_gt > 0, d_gt + 0.03, 0), d_gt, test, [0.01, 0.05])
+    assert e[0] == pytest.approx(1.0) and e[1] == pytest.approx(0.0)
