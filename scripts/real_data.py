@@ -48,14 +48,15 @@ def ycbv():
     print("\n| YCB-V object | ADD-S / d (targets) | ADD / d (targets) | ADD-S / d (no targets) |")
     print("|---|---|---|---|")
     r_t, r_f = det.detect(frame, ds.targets(img)), det.detect(frame)
+
+    def best(res, fn, g, m):
+        e = [fn(x.T_cam_model, g["T_cam_model"], m.points) / m.diameter for x in res.detections
+             if x.obj_id == m.obj_id]
+        return f"{min(e):.3f}" if e else "not found"
+
     for g in ds.gt(img):
         m = lib.by_id(g["obj_id"])
-
-        def best(res, fn):
-            e = [fn(x.T_cam_model, g["T_cam_model"], m.points) / m.diameter for x in res.detections
-                 if x.obj_id == m.obj_id]
-            return f"{min(e):.3f}" if e else "not found"
-        print(f"| {m.name} | {best(r_t, adds)} | {best(r_t, add)} | {best(r_f, adds)} |")
+        print(f"| {m.name} | {best(r_t, adds, g, m)} | {best(r_t, add, g, m)} | {best(r_f, adds, g, m)} |")
 
 
 def bunny():
