@@ -38,6 +38,33 @@ def kabsch_batch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = 
     return T
 
 
+def kabsch_shared(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Kabsch for B weightings of one correspondence set: src, dst (N, 3), weights (B, N) -> (B, 4, 4).
+
+    Same result as ``kabsch_batch`` on broadcast copies, but the weighted sums are matrix products, so the
+    cost is O(B N) multiply-adds instead of several (B, N, 3) temporaries.
+    """
+    w = np.asarray(weights, float)
+    wsum = w.sum(axis=1)
+    if np.any(wsum <= 0):
+        raise ValueError("kabsch weights sum to zero")
+    cs = (w @ src) / wsum[:, None]
+    cd = (w @ dst) / wsum[:, None]
+    # sum_i w_i (s_i - cs)(d_i - cd)^T = sum_i w_i s_i d_i^T - wsum cs cd^T
+    H = np.einsum("bn,ni,nj->bij", w, src, dst, optimize=True) / wsum[:, None, None] \
+        - cs[:, :, None] * cd[:, None, :]
+    U, _, Vt = np.linalg.svd(H)
+    V = Vt.transpose(0, 2, 1)
+    d = np.sign(np.linalg.det(np.matmul(V, U.transpose(0, 2, 1))))
+    d[d == 0] = 1.0
+    V[:, :, 2] *= d[:, None]
+    R = np.matmul(V, U.transpose(0, 2, 1))
+    T = np.tile(np.eye(4), (len(w), 1, 1))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = cd - np.matmul(R, cs[..., None])[..., 0]
+    return T
+
+
 def umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray]:
     """Similarity ``dst ~ s R src + t`` (Umeyama 1991): returns ``(s, T)`` with T holding R and t; det R = +1."""
     src, dst = np.asarray(src, float), np.asarray(dst, float)

@@ -118,7 +118,7 @@ class RefineConfig:
     iterations: int = 30
     max_distance: float = 0.012
     kernel: float = 0.006
-    max_per_model: int = 4
+    max_per_model: int = 3
 
     def __post_init__(self):
         _positive(self, "iterations", "max_distance", "kernel", "max_per_model")

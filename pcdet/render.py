@@ -69,18 +69,43 @@ def render_meshes(camera: Camera, meshes: list[tuple[np.ndarray, np.ndarray, np.
     return Rendering(depth.reshape(h, w), ids.reshape(h, w), normals.reshape(h, w, 3))
 
 
+def mesh_depth_at(camera: Camera, vertices: np.ndarray, faces: np.ndarray, T_cam_mesh: np.ndarray,
+                  pixels: np.ndarray) -> np.ndarray:
+    """(N,) float32 depth (m, 0 where the ray misses) of one mesh at ``pixels`` (N,) flat indices only:
+    no full-image buffers, for the many small renders of verification."""
+    from ._o3d import o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    v = np.asarray(vertices, float) @ T_cam_mesh[:3, :3].T + T_cam_mesh[:3, 3]
+    scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(np.asarray(faces, dtype=np.uint32)))
+    t = scene.cast_rays(o3d.core.Tensor(camera_rays(camera, pixels)))["t_hit"].numpy()
+    return np.where(np.isfinite(t), t, 0).astype(np.float32)
+
+
 def render_points(camera: Camera, points_cam: np.ndarray, spacing: float) -> np.ndarray:
     """Z-buffer (N, 3) camera-frame points into an (H, W) float32 depth image (0 where empty), each point
     splatted over a square of about ``spacing`` metres so that sampled surfaces render without holes."""
     p = np.asarray(points_cam, float)
     p = p[p[:, 2] > 1e-6]
-    depth = np.full(camera.height * camera.width, np.inf)
-    if len(p):
-        uv = np.rint(camera.project(p)).astype(np.int64)
-        ok = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
-        np.minimum.at(depth, uv[ok, 1] * camera.width + uv[ok, 0], p[ok, 2])
-        r = int(np.ceil(camera.fx * spacing / max(float(np.median(p[:, 2])), 1e-3)))
-        if r > 1:
-            depth = minimum_filter(depth.reshape(camera.height, camera.width), size=min(r, 9)).reshape(-1)
-    depth[~np.isfinite(depth)] = 0
-    return depth.reshape(camera.height, camera.width).astype(np.float32)
+    out = np.zeros((camera.height, camera.width), np.float32)
+    if len(p) == 0:
+        return out
+    uv = np.rint(camera.project(p)).astype(np.int64)
+    ok = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
+    if not ok.any():
+        return out
+    uv, z = uv[ok], p[ok, 2]
+    r = int(np.ceil(camera.fx * spacing / max(float(np.median(z)), 1e-3)))
+    r = min(max(r, 1), 9)
+    # work in the points' bounding box (plus the splat margin) only
+    u0, v0 = np.maximum(uv.min(axis=0) - r, 0)
+    u1, v1 = np.minimum(uv.max(axis=0) + r + 1, [camera.width, camera.height])
+    w, h = u1 - u0, v1 - v0
+    buf = np.full(w * h, np.inf)
+    np.minimum.at(buf, (uv[:, 1] - v0) * w + (uv[:, 0] - u0), z)
+    buf = buf.reshape(h, w)
+    if r > 1:
+        buf = minimum_filter(buf, size=r)
+    buf[~np.isfinite(buf)] = 0
+    out[v0:v1, u0:u1] = buf
+    return out

@@ -20,7 +20,7 @@ from .camera import Camera
 from .cloud import Plane
 from .config import VerifyConfig
 from .model import ObjectModel
-from .render import render_meshes, render_points
+from .render import mesh_depth_at, render_meshes, render_points
 
 
 @dataclass
@@ -79,10 +79,19 @@ def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camer
     """Compare ``model`` rendered at ``T_cam_model`` with measured ``depth`` (H, W) float32 metres; with the
     scene's supporting ``plane``, also measure how much of the model would sink into it. ``stride`` > 1 looks
     at every stride-th row and column only (a quick first look; pixel counts shrink by stride^2)."""
-    r = render_model(model, T_cam_model, camera, spacing, stride).reshape(-1)
-    d = depth.reshape(-1)
-    pix = np.flatnonzero(r > 0)
-    rv, dv = r[pix], d[pix]
+    if model.is_mesh:
+        # cast only the rays of the model's bounding box
+        box = _bbox_pixels(camera, model.points @ T_cam_model[:3, :3].T + T_cam_model[:3, 3], stride)
+        if box is None:
+            box = np.zeros(0, np.int64)
+        rv = mesh_depth_at(camera, model.vertices, model.faces, T_cam_model, box) if len(box) else np.zeros(0)
+        hit = rv > 0
+        pix, rv = box[hit], rv[hit]
+    else:
+        r = render_model(model, T_cam_model, camera, spacing, stride).reshape(-1)
+        pix = np.flatnonzero(r > 0)
+        rv = r[pix]
+    dv = depth.reshape(-1)[pix]
     known = dv > 0
     tau = cfg.depth_tolerance
     sup = known & (np.abs(dv - rv) <= tau)

@@ -63,3 +63,12 @@ def test_teaser_cases_inliers(case):
     s_e, T_e = umeyama(src[inl], dst[inl])
     assert s_e == pytest.approx(s, rel=0.01)
     assert rotation_error_deg(T_e[:3, :3], R) < 1.0
+
+
+def test_kabsch_shared_equals_batch(rng):
+    P, Q = rng.normal(size=(50, 3)), rng.normal(size=(50, 3))
+    W = rng.random((4, 50))
+    from pcdet.align import kabsch_shared
+
+    np.testing.assert_allclose(kabsch_shared(P, Q, W), kabsch_batch(np.broadcast_to(P, (4, 50, 3)),
+                                                                     np.broadcast_to(Q, (4, 50, 3)), W), atol=1e-9)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..align import kabsch_batch, transform
+from ..align import kabsch_batch, kabsch_shared, transform
 from ..config import GroupingConfig
 from .hypothesis import Hypothesis
 from .pairs import ScenePairs, pair_features
@@ -226,8 +226,7 @@ def _refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> t
         if not ok.any():
             break
         w = np.where(inside[ok], (1 - (d[ok] / c) ** 2) ** 2, 0.0) + 1e-12
-        n = int(ok.sum())
-        T[ok] = kabsch_batch(np.broadcast_to(cm, (n, *cm.shape)), np.broadcast_to(cs, (n, *cs.shape)), w)
+        T[ok] = kabsch_shared(cm, cs, w)
     pred = np.matmul(cm, T[:, :3, :3].transpose(0, 2, 1)) + T[:, None, :3, 3]
     d = np.sqrt(((pred - cs[None]) ** 2).sum(axis=2))
     return T, [np.flatnonzero(row < tau) for row in d]
