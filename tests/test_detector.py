@@ -58,3 +58,12 @@ def test_empty_scene_gives_no_detection(library):
     depth = np.full((KINECT.height, KINECT.width), 0.9, np.float32)  # a bare wall
     res = Detector(library).detect(Frame(depth, KINECT))
     assert res.detections == []
+
+
+def test_same_result_on_one_or_two_threads(synth_small, library):
+    ds = BopDataset(synth_small)
+    f = ds.frame(ds.images[1])
+    a = Detector(library, workers=1).detect(f)
+    b = Detector(library, workers=2).detect(f)
+    assert [d.to_dict() for d in a.detections] == [d.to_dict() for d in b.detections]
+    assert len(a.detections) > 0
