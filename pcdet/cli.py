@@ -23,7 +23,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
 config_app = typer.Typer(no_args_is_help=True, help="Pipeline configuration.")
 app.add_typer(config_app, name="config")
 console = Console(stderr=True)
-out_console = Console()
+out_console = Console(width=None if sys.stdout.isatty() else 120)  # tables stay readable when piped
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 
