@@ -86,8 +86,3 @@ def umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray]:
 def transform(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply a (4, 4) transform to (N, 3) points."""
     return points @ T[:3, :3].T + T[:3, 3]
-
-
-def rotation_angle_deg(R: np.ndarray) -> float:
-    """Angle (degrees) of a 3x3 rotation."""
-    return float(np.degrees(np.arccos(np.clip((np.trace(R[:3, :3]) - 1) / 2, -1, 1))))

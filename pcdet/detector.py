@@ -94,27 +94,14 @@ class Detector:
             return [fn(x) for x in items]
         return list(self._pool.map(fn, items))
 
-    def detect(self, frame: Frame, targets: dict[int, int] | None = None) -> DetectionResult:
-        """Detect objects in ``frame``.
-
-        targets : optional ``{obj_id: count}`` (BOP localisation): only those objects are searched and the
-            ``count`` best-scoring verified instances of each are kept, without the score threshold.
-        """
+    def _hypotheses(self, scene, scene_tree, kp: np.ndarray, feats: np.ndarray, models: list[int], tm: "_Timer"
+                    ) -> list[Hypothesis]:
+        """Match scene keypoints ``kp`` (their FPFH ``feats``) against each model in ``models`` and group the
+        candidates into pose hypotheses, one model per thread."""
         cfg = self.config
-        tm = _Timer()
-        with tm("preprocess"):
-            scene = preprocess(frame, cfg.preprocess, cfg.seed)
-        stats = {"scene_points": len(scene.points)}
-        with tm("keypoints"):
-            kp = select_keypoints(scene.points, cfg.keypoints)
-        with tm("features"):
-            feats = fpfh(scene.points, scene.normals, kp, cfg.features)
-        stats["scene_keypoints"] = len(kp)
-        models = [i for i, m in enumerate(self.library) if targets is None or m.obj_id in targets]
         hyps: list[Hypothesis] = []
         seeds = np.random.SeedSequence(cfg.seed).spawn(len(self.library))
         kpts, knrm, klab = scene.points[kp], scene.normals[kp], scene.labels[kp]
-        scene_tree = cKDTree(scene.points) if len(scene.points) else None
         with tm("matching"):
             cands = {i: match_features(feats, self.library[i].features, cfg.matching, self._trees[i],
                                        self.workers) for i in models}
@@ -141,8 +128,30 @@ class Detector:
 
             for h in self._map(group, models):
                 hyps += h
+        return hyps
+
+    def detect(self, frame: Frame, targets: dict[int, int] | None = None) -> DetectionResult:
+        """Detect objects in ``frame``.
+
+        targets : optional ``{obj_id: count}`` (BOP localisation): only those objects are searched and the
+            ``count`` best-scoring verified instances of each are kept, without the score threshold.
+        """
+        cfg = self.config
+        tm = _Timer()
+        with tm("preprocess"):
+            scene = preprocess(frame, cfg.preprocess, cfg.seed)
+        stats = {"scene_points": len(scene.points)}
+        with tm("keypoints"):
+            kp = select_keypoints(scene.points, cfg.keypoints)
+        with tm("features"):
+            feats = fpfh(scene.points, scene.normals, kp, cfg.features)
+        stats["scene_keypoints"] = len(kp)
+        models = [i for i, m in enumerate(self.library) if targets is None or m.obj_id in targets]
+        scene_tree = cKDTree(scene.points) if len(scene.points) else None
+        hyps = self._hypotheses(scene, scene_tree, kp, feats, models, tm)
         stats["hypotheses"] = len(hyps)
         if len(hyps) == 0 or len(scene.points) == 0:
+            stats["refined"] = stats["detections"] = 0
             return DetectionResult([], tm.t, stats)
         with tm("verify"):
             # cheap first look at the raw poses: only plausible ones are worth an ICP

@@ -91,11 +91,6 @@ def rotation_error_deg(R_est: np.ndarray, R_gt: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(c, -1, 1))))
 
 
-def translation_error(t_est: np.ndarray, t_gt: np.ndarray) -> float:
-    """||t_est - t_gt|| (same units as the inputs)."""
-    return float(np.linalg.norm(np.asarray(t_est) - np.asarray(t_gt)))
-
-
 @dataclass
 class InstanceErrors:
     """Errors of the estimate matched to one ground-truth instance (None where no estimate matched)."""
