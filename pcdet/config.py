@@ -105,8 +105,8 @@ class GroupingConfig:
     grid_per_diameter: float = 12.0
 
     def __post_init__(self):
-        if self.method not in ("ransac",):
-            raise ValueError(f"GroupingConfig.method {self.method!r} is not available; choose 'ransac'")
+        if self.method not in ("ransac", "gc"):
+            raise ValueError(f"GroupingConfig.method {self.method!r} is not available; choose 'ransac' or 'gc'")
         _positive(self, "iterations", "inlier_distance", "edge_tolerance", "normal_tolerance_deg",
                   "min_inliers", "max_instances", "grid_per_diameter", "rescore")
         if self.alternatives < 0:
@@ -232,7 +232,7 @@ FIELD_DOCS = {
     "matching.k": "candidate model keypoints kept per scene keypoint (nearest in FPFH space)",
     "matching.ratio": "Lowe ratio test on the nearest two (1.0: off, keep k)",
     "matching.mutual": "keep only mutual nearest neighbours",
-    "grouping.method": "correspondence grouping: 'ransac'",
+    "grouping.method": "correspondence grouping: 'ransac' or 'gc' (geometric consistency)",
     "grouping.iterations": "triplets drawn per cluster and instance round",
     "grouping.inlier_distance": "m; a correspondence within this of the posed model point is an inlier",
     "grouping.edge_tolerance": "m; pair-length difference allowed between scene and model pairs",

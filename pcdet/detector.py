@@ -15,6 +15,7 @@ from .config import PipelineConfig
 from .features import fpfh
 from .frame import Frame
 from .grouping import Hypothesis, ransac_instances
+from .grouping.consistency import consistency_groups
 from .grouping.ransac import Overlap
 from .grouping.pairs import scene_pairs
 from .keypoints import select_keypoints
@@ -122,6 +123,9 @@ class Detector:
                 m = self.library[i]
                 sub, pairs = pair_cache[keys[i]]
                 rng = np.random.default_rng(seeds[i])  # one generator per model: order and threads do not matter
+                if cfg.grouping.method == "gc":
+                    return consistency_groups(kpts[sub], cands[i].model[sub], cands[i].distance[sub], m.kp_points,
+                                              m.kp_normals, pairs, m.diameter, cfg.grouping, i)
                 overlap = Overlap(*self._icp_pts[i], scene_tree, 0.75 * cfg.grouping.inlier_distance)
                 return ransac_instances(kpts[sub], cands[i].model[sub], m.kp_points, m.kp_normals, pairs,
                                         m.diameter, cfg.grouping, rng, klab[sub], i, m.points, overlap, knrm[sub])

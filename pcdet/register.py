@@ -14,6 +14,7 @@ from .cloud import voxel_downsample
 from .config import PipelineConfig, RefineConfig
 from .errors import InputError
 from .features import fpfh
+from .grouping.consistency import consistency_groups
 from .grouping.pairs import scene_pairs
 from .grouping.ransac import ransac_instances
 from .keypoints import select_keypoints
@@ -27,6 +28,7 @@ class RegisterConfig:
     """voxel: sampling of both inputs (m; None: 1/40 of the source's diameter); the rest scale with it."""
 
     voxel: float | None = None
+    grouping: str = "ransac"
     k: int = 3
     iterations: int = 4000
     alternatives: int = 5
@@ -82,8 +84,14 @@ def register(source, target, config: RegisterConfig | None = None, units="auto")
     tf = fpfh(tp, tn, tkp, pc.features)
     cand = match_features(tf, sf, pc.matching)  # target keypoints look up source descriptors
     pairs = scene_pairs(tp[tkp], tn[tkp], np.zeros(len(tkp), np.int64), diameter)
-    rng = np.random.default_rng(cfg.seed)
-    hyps = ransac_instances(tp[tkp], cand.model, sp[skp], sn[skp], pairs, diameter, pc.grouping, rng)
+    if cfg.grouping == "gc":
+        hyps = consistency_groups(tp[tkp], cand.model, cand.distance, sp[skp], sn[skp], pairs, diameter,
+                                  pc.grouping)
+    elif cfg.grouping == "ransac":
+        hyps = ransac_instances(tp[tkp], cand.model, sp[skp], sn[skp], pairs, diameter, pc.grouping,
+                                np.random.default_rng(cfg.seed))
+    else:
+        raise InputError(f"grouping {cfg.grouping!r} is not available for registration; use 'ransac' or 'gc'")
     t2 = time.perf_counter()
     if not hyps:
         raise InputError("no consistent alignment found: do the inputs overlap, and are they in the same units?")

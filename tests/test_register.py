@@ -32,3 +32,16 @@ def test_bunny_within_5mm(scan):
     err = np.linalg.norm((X @ r.T_target_source[:3, :3].T + r.T_target_source[:3, 3])
                          - (X @ T_scan_model[:3, :3].T + T_scan_model[:3, 3]), axis=1)
     assert err.max() < 0.005, f"largest model-point displacement {err.max() * 1000:.2f} mm"
+
+
+@pytest.mark.real
+def test_bunny_gc_grouping_within_5mm():
+    from pcdet.register import RegisterConfig
+
+    d = shared("bunny")
+    T_scan_model = np.linalg.inv(_conf(d)["bun045.ply"])
+    r = register(d / "bun_zipper_res3.ply", d / "bun045.ply", RegisterConfig(grouping="gc"))
+    X = load_geometry(d / "bun_zipper_res3.ply").vertices
+    err = np.linalg.norm((X @ r.T_target_source[:3, :3].T + r.T_target_source[:3, 3])
+                         - (X @ T_scan_model[:3, :3].T + T_scan_model[:3, 3]), axis=1)
+    assert err.max() < 0.005, f"largest model-point displacement {err.max() * 1000:.2f} mm"

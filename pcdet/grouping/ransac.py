@@ -182,7 +182,7 @@ def _one_instance(cs, cm, k, start, deg, nbr, active, diameter, cfg, rng, overla
     lead = _distinct(T, order, diameter, limit)
     if len(lead) == 0:
         return []
-    Tr, inls = _refit_batch(T[lead], cm[pool], cs[pool], cfg.inlier_distance)
+    Tr, inls = refit_batch(T[lead], cm[pool], cs[pool], cfg.inlier_distance)
     n_pts = np.array([len(np.unique(pool[i] // k)) for i in inls])
     keep = np.flatnonzero(n_pts >= cfg.min_inliers)
     if len(keep) == 0:
@@ -212,7 +212,7 @@ def _distinct(T: np.ndarray, order: np.ndarray, diameter: float, limit: int) -> 
     return np.array(kept, np.int64)
 
 
-def _refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tuple[np.ndarray, list[np.ndarray]]:
+def refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tuple[np.ndarray, list[np.ndarray]]:
     """Robust refit of B poses (B, 4, 4) on correspondences (model cm -> scene cs, (M, 3) each): Tukey-weighted
     Kabsch with the kernel shrinking from ``tau`` to ``tau / 2``, so that wrong matches that happen to fall
     near the object do not pull a pose. Returns the poses and, for each, the indices within ``tau`` of it."""
