@@ -1,0 +1,48 @@
+"""Local reference frames: proper rotations, and repeatable under rotation and sensor noise."""
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from pcdet.cloud import voxel_downsample
+from pcdet.config import KeypointConfig
+from pcdet.keypoints import select_keypoints
+from pcdet.lrf import shot_lrf
+from pcdet.metrics import rotation_error_deg
+from pcdet.render import render_meshes
+from pcdet.synth import KINECT
+
+
+def _view(m, T):
+    r = render_meshes(KINECT, [(m.vertices, m.faces, T)])
+    pts, _ = KINECT.backproject(r.depth)
+    return pts
+
+
+def test_frames_are_proper_rotations(library):
+    m = library[0]
+    F, ok = shot_lrf(m.points, m.points[::10], 0.025)
+    assert ok.mean() > 0.9
+    np.testing.assert_allclose(np.einsum("kij,klj->kil", F, F), np.tile(np.eye(3), (len(F), 1, 1)), atol=1e-9)
+    np.testing.assert_allclose(np.linalg.det(F), 1.0, atol=1e-9)
+
+
+def test_repeatable_under_rotation_and_noise(library):
+    """Same surface points seen by a sensor, then rotated and re-sampled with 1 mm noise: the frames at
+    corresponding keypoints agree within 10 degrees for at least 65 % of them on every shipped model
+    (measured 0.77, 0.71, 0.90, 0.84, 0.74, 0.90 for models 1-6)."""
+    rng = np.random.default_rng(7)
+    shares = []
+    for m in library:
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("xyz", [30, -20, 10], degrees=True).as_matrix()
+        T[:3, 3] = [0, 0, 0.6]
+        pts, _, _ = voxel_downsample(_view(m, T), 0.002, representatives=False)
+        kp = pts[select_keypoints(pts, KeypointConfig(spacing=0.01))]
+        R = Rotation.from_rotvec(rng.normal(size=3)).as_matrix()
+        moved = pts @ R.T + rng.normal(0, 0.001, pts.shape)
+        F1, ok1 = shot_lrf(pts, kp, 0.025)
+        F2, ok2 = shot_lrf(moved, kp @ R.T, 0.025)
+        ok = ok1 & ok2
+        # frame 2 should be frame 1 rotated: F2 = F1 R^T
+        err = np.array([rotation_error_deg(F2[i], F1[i] @ R.T) for i in np.flatnonzero(ok)])
+        shares.append(float((err < 10).mean()))
+    assert min(shares) >= 0.65, f"share of frames within 10 degrees per model: {np.round(shares, 2)}"
