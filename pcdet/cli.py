@@ -84,7 +84,7 @@ def detect(models: Path = typer.Option(MODELS_DIR, help="Folder of object models
            out: Path = typer.Option(..., help="Detections JSON to write."),
            overlay: Optional[Path] = typer.Option(None, help="PNG picture of the detections."),
            pipeline: Optional[str] = typer.Option(None, help="Preset name (pipelines/NAME.toml) or TOML file."),
-           grouping: Optional[str] = typer.Option(None, help="Grouping method: ransac or gc."),
+           grouping: Optional[str] = typer.Option(None, help="Grouping method: ransac, gc or hough."),
            units: str = typer.Option("auto", help="Model units: auto, m, cm, mm."),
            seed: Optional[int] = typer.Option(None, help="Random seed (overrides the pipeline's)."),
            ):
@@ -130,7 +130,7 @@ def run(dataset: Path = typer.Argument(..., help="BOP dataset folder (with model
         out: Path = typer.Option(..., help="Output folder: results.csv, frames/*.json, config.toml."),
         targets: Optional[str] = typer.Option(None, help="'gt': localise the objects listed in scene_gt.json."),
         pipeline: Optional[str] = typer.Option(None, help="Preset name or TOML file."),
-        grouping: Optional[str] = typer.Option(None, help="Grouping method: ransac or gc."),
+        grouping: Optional[str] = typer.Option(None, help="Grouping method: ransac, gc or hough."),
         units: str = typer.Option("auto", help="Model units: auto, m, cm, mm (BOP models/: mm)."),
         seed: Optional[int] = typer.Option(None, help="Random seed (overrides the pipeline's)."),
         times: bool = typer.Option(False, help="Write measured times into results.csv (default -1, so that "
@@ -180,7 +180,7 @@ def register(source: Path = typer.Argument(..., help="Model or cloud to move (me
              target: Path = typer.Argument(..., help="Scan to align it to."),
              out: Optional[Path] = typer.Option(None, help="JSON file for T_target_source."),
              voxel: Optional[float] = typer.Option(None, help="Sampling (m); default diameter / 40."),
-             grouping: Optional[str] = typer.Option(None, help="Grouping method: ransac or gc."),
+             grouping: Optional[str] = typer.Option(None, help="Grouping method: ransac, gc or hough."),
              units: str = typer.Option("auto", help="Units of both files: auto, m, cm, mm."),
              seed: int = typer.Option(0, help="Random seed."),
              ):

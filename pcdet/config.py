@@ -102,11 +102,15 @@ class GroupingConfig:
     alternatives: int = 2
     rescore: int = 20
     min_normal_spread_deg: float = 15.0
+    hough_bin: float = 0.015
+    hough_min_votes: float = 4.0
+    hough_rotation_tol_deg: float = 20.0
     grid_per_diameter: float = 12.0
 
     def __post_init__(self):
-        if self.method not in ("ransac", "gc"):
-            raise ValueError(f"GroupingConfig.method {self.method!r} is not available; choose 'ransac' or 'gc'")
+        if self.method not in ("ransac", "gc", "hough"):
+            raise ValueError(f"GroupingConfig.method {self.method!r} is not available; choose 'ransac', 'gc' "
+                             "or 'hough'")
         _positive(self, "iterations", "inlier_distance", "edge_tolerance", "normal_tolerance_deg",
                   "min_inliers", "max_instances", "grid_per_diameter", "rescore")
         if self.alternatives < 0:
@@ -232,7 +236,10 @@ FIELD_DOCS = {
     "matching.k": "candidate model keypoints kept per scene keypoint (nearest in FPFH space)",
     "matching.ratio": "Lowe ratio test on the nearest two (1.0: off, keep k)",
     "matching.mutual": "keep only mutual nearest neighbours",
-    "grouping.method": "correspondence grouping: 'ransac' or 'gc' (geometric consistency)",
+    "grouping.method": "correspondence grouping: 'ransac', 'gc' (geometric consistency) or 'hough' (6-DoF voting)",
+    "grouping.hough_bin": "m; Hough accumulator cell size",
+    "grouping.hough_min_votes": "votes a Hough peak needs (trilinear weights)",
+    "grouping.hough_rotation_tol_deg": "degrees; a peak's voters must agree on the rotation within this",
     "grouping.iterations": "triplets drawn per cluster and instance round",
     "grouping.inlier_distance": "m; a correspondence within this of the posed model point is an inlier",
     "grouping.edge_tolerance": "m; pair-length difference allowed between scene and model pairs",

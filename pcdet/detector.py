@@ -16,6 +16,8 @@ from .features import fpfh
 from .frame import Frame
 from .grouping import Hypothesis, ransac_instances
 from .grouping.consistency import consistency_groups
+from .grouping.hough import hough_groups
+from .lrf import shot_lrf
 from .grouping.ransac import Overlap
 from .grouping.pairs import scene_pairs
 from .keypoints import select_keypoints
@@ -83,6 +85,7 @@ class Detector:
         self._pool = ThreadPoolExecutor(self.workers) if self.workers > 1 else None
         self._trees = [cKDTree(m.features) for m in library]
         # ICP needs far fewer points than verification: a grid of twice the scene voxel keeps the shape
+        self._reference = [(m.points.max(0) + m.points.min(0)) / 2 for m in library]  # Hough vote target
         self._icp_pts = []
         for m in library:
             p, n, _ = voxel_downsample(m.points, 2 * self.config.preprocess.voxel, m.normals, representatives=False)
@@ -103,6 +106,11 @@ class Detector:
         hyps: list[Hypothesis] = []
         seeds = np.random.SeedSequence(cfg.seed).spawn(len(self.library))
         kpts, knrm, klab = scene.points[kp], scene.normals[kp], scene.labels[kp]
+        scene_lrf = None
+        if cfg.grouping.method == "hough":
+            with tm("lrf"):
+                scene_lrf, ok = shot_lrf(scene.points, kpts, cfg.features.radius, scene_tree)
+                scene_lrf[~ok] = np.nan
         with tm("matching"):
             cands = {i: match_features(feats, self.library[i].features, cfg.matching, self._trees[i],
                                        self.workers) for i in models}
@@ -123,6 +131,9 @@ class Detector:
                 m = self.library[i]
                 sub, pairs = pair_cache[keys[i]]
                 rng = np.random.default_rng(seeds[i])  # one generator per model: order and threads do not matter
+                if cfg.grouping.method == "hough":
+                    return hough_groups(kpts[sub], scene_lrf[sub], cands[i].model[sub], m.kp_points, m.kp_lrfs,
+                                        self._reference[i], m.diameter, cfg.grouping, i)
                 if cfg.grouping.method == "gc":
                     return consistency_groups(kpts[sub], cands[i].model[sub], cands[i].distance[sub], m.kp_points,
                                               m.kp_normals, pairs, m.diameter, cfg.grouping, i)

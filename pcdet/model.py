@@ -28,7 +28,7 @@ MESH_SUFFIXES = {".ply", ".obj", ".stl", ".off", ".glb", ".gltf"}
 CLOUD_ONLY_SUFFIXES = {".pcd", ".xyz", ".xyzn", ".pts"}
 MODEL_SUFFIXES = MESH_SUFFIXES | CLOUD_ONLY_SUFFIXES
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
-CACHE_VERSION = 6
+CACHE_VERSION = 8
 # An object wider than this many "metres" is certainly in mm (table-top and warehouse objects are < 3 m).
 MM_DETECT_EXTENT = 3.0
 
@@ -43,7 +43,9 @@ class ObjectModel:
 
     points, normals : (N, 3) float64 surface samples (one per voxel) and outward unit normals.
     kp_points, kp_normals : (K, 3) keypoints and their normals as seen in rendered partial views (model frame);
-    features : (K, 33) float32 FPFH of each, computed on that view alone (as a sensor would see it).
+    features : (K, 33) float32 FPFH of each, computed on that view alone (as a sensor would see it);
+    kp_lrfs : (K, 3, 3) SHOT local reference frames (rows x, y, z, model frame) from the same view, NaN where
+        the view had too few points around the keypoint.
     diameter : largest distance between two model points (m).
     vertices, faces : (V, 3) float64 m and (F, 3) int64 when the model is a mesh, else None.
     scale : factor applied to the file's coordinates to get metres.
@@ -57,6 +59,7 @@ class ObjectModel:
     kp_points: np.ndarray
     kp_normals: np.ndarray
     features: np.ndarray
+    kp_lrfs: np.ndarray
     diameter: float
     scale: float = 1.0
     vertices: np.ndarray | None = None
@@ -208,11 +211,11 @@ def build_model(path, cfg: PipelineConfig, units="auto", obj_id: int = 0, name: 
                          "wrong units?", path)
     vv = verts if faces is not None else None
     diameter = _diameter(verts if vv is not None else pts)  # a mesh's vertices give the exact value
-    kpp, kpn, feats = view_features(pts, nrm, vv, faces, diameter, cfg)
+    kpp, kpn, feats, lrfs = view_features(pts, nrm, vv, faces, diameter, cfg)
     if len(kpp) < 3:
         raise InputError("no view of the model yields keypoints: is it flat, tiny, or in the wrong units?", path)
-    return ObjectModel(name or path.stem, int(obj_id), str(path), pts, nrm, kpp, kpn, feats, diameter, scale, vv,
-                       faces, notes)
+    return ObjectModel(name or path.stem, int(obj_id), str(path), pts, nrm, kpp, kpn, feats, lrfs, diameter, scale,
+                       vv, faces, notes)
 
 
 def view_directions(n: int) -> np.ndarray:
@@ -230,8 +233,10 @@ def view_features(points, normals, vertices, faces, diameter: float, cfg: Pipeli
     For each viewpoint (on a sphere of radius ``cfg.model.view_distance`` m around the model's centre) the
     samples that the sensor would see are kept (rendered depth agrees, normal faces the camera); normals are
     re-estimated on that partial cloud and oriented to the camera, and FPFH is computed on it, exactly as for a
-    scene. Returns ``(kp_points (K, 3), kp_normals (K, 3), features (K, 33))`` in the model frame.
+    scene. Returns ``(kp_points (K, 3), kp_normals (K, 3), features (K, 33), lrfs (K, 3, 3))`` in the model
+    frame (LRF rows NaN where invalid).
     """
+    from .lrf import shot_lrf
     from .camera import Camera
     from .render import render_meshes, render_points
 
@@ -242,7 +247,7 @@ def view_features(points, normals, vertices, faces, diameter: float, cfg: Pipeli
     while f * diameter / mc.view_distance > 300:  # keep the object in the image
         f *= 0.8
         cam = Camera(f, f, 159.5, 159.5, 320, 320)
-    out_p, out_n, out_f = [], [], []
+    out_p, out_n, out_f, out_l = [], [], [], []
     for d in view_directions(mc.views):
         eye = centre + d * mc.view_distance
         z = -d
@@ -272,13 +277,17 @@ def view_features(points, normals, vertices, faces, diameter: float, cfg: Pipeli
         vn = estimate_normals(vp, pp.normal_radius, pp.normal_max_nn)  # toward the camera, as in a scene
         kp = select_keypoints(vp, cfg.keypoints)
         feats = fpfh(vp, vn, kp, cfg.features)
+        F, ok = shot_lrf(vp, vp[kp], cfg.features.radius)
+        F = F @ R  # camera-frame axes -> model-frame axes (rows)
+        F[~ok] = np.nan
         Rt = R.T
         out_p.append((vp[kp] - T_cam_model[:3, 3]) @ R)
         out_n.append(vn[kp] @ Rt.T)
         out_f.append(feats)
+        out_l.append(F)
     if not out_p:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 33), np.float32)
-    return np.concatenate(out_p), np.concatenate(out_n), np.concatenate(out_f)
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 33), np.float32), np.zeros((0, 3, 3))
+    return np.concatenate(out_p), np.concatenate(out_n), np.concatenate(out_f), np.concatenate(out_l)
 
 
 def _outward_normals(pts: np.ndarray, radius: float, max_nn: int) -> np.ndarray:
@@ -299,7 +308,7 @@ def _outward_normals(pts: np.ndarray, radius: float, max_nn: int) -> np.ndarray:
 def _save(model: ObjectModel, path: Path) -> None:
     buf = io.BytesIO()
     meta = {k: getattr(model, k) for k in ("name", "obj_id", "path", "diameter", "scale", "notes")}
-    arrays = {k: getattr(model, k) for k in ("points", "normals", "kp_points", "kp_normals", "features")}
+    arrays = {k: getattr(model, k) for k in ("points", "normals", "kp_points", "kp_normals", "features", "kp_lrfs")}
     if model.is_mesh:
         arrays.update(vertices=model.vertices, faces=model.faces)
     np.savez(buf, meta=np.array(json.dumps(meta)), **arrays)
@@ -335,8 +344,8 @@ def load_model(path, cfg: PipelineConfig | None = None, units="auto", obj_id: in
             m = _load(cpath)
             m.path = str(path)
             return m
-        except (OSError, ValueError, KeyError):
-            pass  # a corrupt cache entry is rebuilt below
+        except (OSError, ValueError, KeyError, TypeError):
+            pass  # a corrupt or stale cache entry (other fields) is rebuilt below
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         m = build_model(path, cfg, units, obj_id, name)

@@ -67,3 +67,16 @@ def test_same_result_on_one_or_two_threads(synth_small, library):
     b = Detector(library, workers=2).detect(f)
     assert [d.to_dict() for d in a.detections] == [d.to_dict() for d in b.detections]
     assert len(a.detections) > 0
+
+
+@pytest.mark.real
+def test_pcl_milk_with_hough_grouping():
+    """Issue 3's PCL tutorial case: Hough grouping finds the tutorial's milk model once, within 5 mm / 2 deg."""
+    d = shared("pcl_milk")
+    T_gt = np.array(json.loads((d / "gt.json").read_text())["poses"]["model_milk.pcd"])
+    cfg = PipelineConfig().replace(grouping={"method": "hough"})
+    res = Detector(ModelLibrary.from_files([d / "model_milk.pcd"], cfg), cfg).detect(Frame.from_cloud(d / "scene.pcd"))
+    assert len(res.detections) == 1
+    T = res.detections[0].T_cam_model
+    assert np.linalg.norm(T[:3, 3] - T_gt[:3, 3]) < 0.005
+    assert rotation_error_deg(T[:3, :3], T_gt[:3, :3]) < 2.0

@@ -95,3 +95,27 @@ def test_detector_with_gc_grouping(synth_small, library):
             found += bool(errs) and min(errs) < 0.1 * m.diameter
             total += 1
     assert found >= 0.7 * total, f"{found}/{total} within ADD 0.1 d"
+
+
+def test_hough_votes_recover_pose(library, rng):
+    """Correspondences carrying the model keypoints' own LRFs, rotated into the scene, 90 % outliers."""
+    from pcdet.grouping.hough import hough_groups
+
+    m = library[0]
+    good = np.flatnonzero(~np.isnan(m.kp_lrfs[:, 0, 0]))
+    ok = 0
+    for _ in range(10):
+        idx = rng.choice(good, 300, replace=False)
+        T = random_pose(rng, 0.2)
+        T[2, 3] += 0.8
+        S = m.kp_points[idx] @ T[:3, :3].T + T[:3, 3] + rng.normal(0, 0.001, (300, 3))
+        F = m.kp_lrfs[idx] @ T[:3, :3].T  # rows rotated into the scene
+        cand = idx.copy()
+        bad = rng.random(300) < 0.9
+        cand[bad] = rng.choice(good, bad.sum())
+        ref = m.points.mean(axis=0)
+        hyps = hough_groups(S, F, cand[:, None], m.kp_points, m.kp_lrfs, ref, m.diameter, GroupingConfig())
+        if hyps:
+            E = hyps[0].T_cam_model
+            ok += rotation_error_deg(E[:3, :3], T[:3, :3]) < 2 and np.linalg.norm(E[:3, 3] - T[:3, 3]) < 0.01
+    assert ok >= 9, f"{ok}/10 trials within 2 degrees and 1 cm"
