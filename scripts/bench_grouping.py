@@ -6,7 +6,11 @@ noise; a chosen share of them is matched to a random model keypoint instead of i
 TEASER++ benchmark cases in ../shared/data/teaser_cases (no normals: the angle tests pass trivially; the scale
 is divided out, as their SOURCE.txt suggests, for a rigid problem).
 
-Run: python scripts/bench_grouping.py [--trials 30]
+Hough needs local reference frames: in the synthetic sets the scene keypoints carry the model keypoints'
+frames rotated by the true pose (so LRF noise is not part of this benchmark); the TEASER cases have no
+surfaces, so Hough is not run on them.
+
+Run: python scripts/bench_grouping.py [--trials 30] [--n 1000]
 """
 from __future__ import annotations
 
@@ -19,6 +23,7 @@ from scipy.spatial.transform import Rotation
 
 from pcdet.config import GroupingConfig
 from pcdet.grouping.consistency import consistency_groups
+from pcdet.grouping.hough import hough_groups
 from pcdet.grouping.pairs import scene_pairs
 from pcdet.grouping.ransac import ransac_instances
 from pcdet.io.clouds import read_cloud
@@ -28,7 +33,9 @@ from pcdet.model import ModelLibrary
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def run(method, S, N, cand, dist, mp, mn, diameter, cfg, seed):
+def run(method, S, N, cand, dist, mp, mn, diameter, cfg, seed, lrf=None, model_lrf=None, ref=None):
+    if method == "hough":
+        return hough_groups(S, lrf, cand, mp, model_lrf, ref, diameter, cfg)
     pairs = scene_pairs(S, N, np.zeros(len(S), np.int64), diameter)
     if method == "gc":
         return consistency_groups(S, cand, dist, mp, mn, pairs, diameter, cfg)
@@ -42,28 +49,33 @@ def ok(hyps, T):
     return rotation_error_deg(E[:3, :3], T[:3, :3]) < 2 and np.linalg.norm(E[:3, 3] - T[:3, 3]) < 0.01
 
 
-def synthetic(trials, methods):
+def synthetic(trials, methods, n=1000):
     m = ModelLibrary.from_folder(ROOT / "models")[0]
     cfg = GroupingConfig()
+    good = np.flatnonzero(~np.isnan(m.kp_lrfs[:, 0, 0]))
+    ref = m.points.mean(axis=0)
+    print(f"\n{n} correspondences per trial, {trials} trials")
     print("| outliers | " + " | ".join(f"{x} success | {x} median ms" for x in methods) + " |")
     print("|---|" + "---|---|" * len(methods))
     for share in (0.5, 0.9, 0.95, 0.99):
         res = {x: [0, []] for x in methods}
         rng = np.random.default_rng(0)
         for t in range(trials):
-            idx = rng.choice(len(m.kp_points), 1000, replace=False)
+            idx = rng.choice(good, n, replace=n > len(good))
             T = np.eye(4)
             T[:3, :3] = Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
             T[:3, 3] = rng.normal(0, 0.1, 3) + [0, 0, 0.8]
-            S = m.kp_points[idx] @ T[:3, :3].T + T[:3, 3] + rng.normal(0, 0.001, (1000, 3))
+            S = m.kp_points[idx] @ T[:3, :3].T + T[:3, 3] + rng.normal(0, 0.001, (n, 3))
             N = m.kp_normals[idx] @ T[:3, :3].T
+            F = m.kp_lrfs[idx] @ T[:3, :3].T  # the scene keypoints' LRFs: the model's, rotated
             cand = idx.copy()
-            bad = rng.random(1000) < share
-            cand[bad] = rng.integers(0, len(m.kp_points), bad.sum())
-            dist = rng.random((1000, 1))  # descriptor distance carries no information here
+            bad = rng.random(n) < share
+            cand[bad] = rng.choice(good, bad.sum())
+            dist = rng.random((n, 1))  # descriptor distance carries no information here
             for x in methods:
                 t0 = time.perf_counter()
-                h = run(x, S, N, cand[:, None], dist, m.kp_points, m.kp_normals, m.diameter, cfg, t)
+                h = run(x, S, N, cand[:, None], dist, m.kp_points, m.kp_normals, m.diameter, cfg, t, F, m.kp_lrfs,
+                        ref)
                 res[x][1].append(time.perf_counter() - t0)
                 res[x][0] += ok(h, T)
         print(f"| {share:.0%} | " + " | ".join(f"{res[x][0] / trials:.2f} | {np.median(res[x][1]) * 1000:.0f}"
@@ -103,7 +115,8 @@ def teaser(methods):
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=30)
-    ap.add_argument("--methods", default="ransac,gc")
+    ap.add_argument("--methods", default="ransac,gc,hough")
+    ap.add_argument("--n", type=int, default=1000, help="correspondences per synthetic trial")
     a = ap.parse_args()
-    synthetic(a.trials, a.methods.split(","))
-    teaser(a.methods.split(","))
+    synthetic(a.trials, a.methods.split(","), a.n)
+    teaser([x for x in a.methods.split(",") if x != "hough"])  # no LRFs without normals
