@@ -70,6 +70,21 @@ def estimate_normals(points: np.ndarray, radius: float, max_nn: int = 30,
     return n
 
 
+def diameter(points: np.ndarray) -> float:
+    """Largest distance between two of the (N, 3) points (m), over their convex hull."""
+    from scipy.spatial import ConvexHull
+
+    points = np.asarray(points, float)
+    try:
+        hull = points[ConvexHull(points).vertices]
+    except Exception:  # flat or degenerate sets: fall back on all points (qhull's errors are not user-facing)
+        hull = points
+    if len(hull) > 3000:
+        hull = hull[np.linspace(0, len(hull) - 1, 3000).astype(int)]
+    d2 = ((hull[:, None, :] - hull[None, :, :]) ** 2).sum(-1)
+    return float(np.sqrt(d2.max()))
+
+
 @dataclass(frozen=True)
 class Plane:
     """Plane ``normal . x + offset = 0`` (unit normal toward the camera) and the indices of its inliers."""

@@ -40,7 +40,8 @@ def evaluate(ds: BopDataset, estimates: list[dict], library: ModelLibrary, with_
         gts = ds.gt(img)
         ests = by_img.get((img.scene_id, img.im_id), [])
         cam = ds.camera(img)
-        errs, _ = match_image(gts, ests, points, cam.K, cam.width, scene_id=img.scene_id, im_id=img.im_id)
+        errs, _ = match_image(gts, ests, points, cam.K, cam.width, scene_id=img.scene_id, im_id=img.im_id,
+                              diameters=diam)
         if with_vsd and any(e.score is not None for e in errs):
             _add_vsd(errs, gts, ests, ds.frame(img), library)
         errors += errs

@@ -111,16 +111,20 @@ class InstanceErrors:
 
 def match_image(gts: list[dict], ests: list[dict], points: dict[int, np.ndarray], K: np.ndarray,
                 image_width: int = 640, symmetries: dict[int, list[np.ndarray]] | None = None,
-                scene_id: int = 0, im_id: int = 0) -> tuple[list[InstanceErrors], int]:
+                scene_id: int = 0, im_id: int = 0, diameters: dict[int, float] | None = None
+                ) -> tuple[list[InstanceErrors], int]:
     """Match estimates to ground-truth instances of one image, per object, greedily by score (BOP style:
     each estimate, best score first, takes the unmatched instance with the lowest MSSD if that MSSD is within
     the loosest MSSD threshold).
 
     gts : [{"obj_id", "T_cam_model", "visib_fract"}]; ests : [{"obj_id", "score", "T_cam_model"}];
-    points : {obj_id: (N, 3) model points, m}. Returns the per-instance errors and the number of estimates
-    that matched no instance (false positives).
+    points : {obj_id: (N, 3) model points, m}; diameters : {obj_id: m}, computed from the points when absent.
+    Returns the per-instance errors and the number of estimates that matched no instance (false positives).
     """
+    from .cloud import diameter
+
     symmetries = symmetries or {}
+    diameters = dict(diameters or {})
     out: list[InstanceErrors] = []
     false_pos = 0
     for oid in sorted({g["obj_id"] for g in gts} | {e["obj_id"] for e in ests}):
@@ -132,7 +136,9 @@ def match_image(gts: list[dict], ests: list[dict], points: dict[int, np.ndarray]
             false_pos += len(e_o)
             continue
         X = points[oid]
-        diam = _diameter(X)
+        if oid not in diameters:
+            diameters[oid] = diameter(X)
+        diam = diameters[oid]
         taken: dict[int, int] = {}
         for ei, e in zip(e_idx, e_o):
             best, best_err = None, None
@@ -158,19 +164,6 @@ def match_image(gts: list[dict], ests: list[dict], points: dict[int, np.ndarray]
                                       adds(Te, Tg, X), mssd(Te, Tg, X, symmetries.get(oid)),
                                       mspd(Te, Tg, X, K, symmetries.get(oid)), gt_index=g_idx[gi], est_index=ei))
     return out, false_pos
-
-
-_DIAM_CACHE: dict[int, float] = {}
-
-
-def _diameter(X: np.ndarray) -> float:
-    key = id(X)
-    if key not in _DIAM_CACHE:
-        from scipy.spatial import ConvexHull
-
-        h = X[ConvexHull(X).vertices]
-        _DIAM_CACHE[key] = float(np.sqrt(((h[:, None] - h[None]) ** 2).sum(-1).max()))
-    return _DIAM_CACHE[key]
 
 
 def summarize(errors: list[InstanceErrors], diameters: dict[int, float], false_pos: int,

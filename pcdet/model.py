@@ -15,8 +15,8 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 import numpy as np
-from scipy.spatial import ConvexHull
 
+from .cloud import diameter as _diameter
 from .cloud import estimate_normals, voxel_downsample
 from .config import PipelineConfig
 from .errors import InputError
@@ -134,17 +134,6 @@ def _resolve_scale(verts: np.ndarray, units, path: Path, notes: list[str]) -> fl
         warnings.warn(f"{path}: model is {extent * scale:.1f} m wide when read as {units}; is it in millimetres?",
                       UnitsWarning, stacklevel=3)
     return scale
-
-
-def _diameter(points: np.ndarray) -> float:
-    try:
-        hull = points[ConvexHull(points).vertices]
-    except Exception:  # flat or degenerate sets: fall back on all points (qhull's errors are not user-facing)
-        hull = points
-    if len(hull) > 3000:
-        hull = hull[np.linspace(0, len(hull) - 1, 3000).astype(int)]
-    d2 = ((hull[:, None, :] - hull[None, :, :]) ** 2).sum(-1)
-    return float(np.sqrt(d2.max()))
 
 
 @dataclass

@@ -79,9 +79,10 @@ def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camer
     """Compare ``model`` rendered at ``T_cam_model`` with measured ``depth`` (H, W) float32 metres; with the
     scene's supporting ``plane``, also measure how much of the model would sink into it. ``stride`` > 1 looks
     at every stride-th row and column only (a quick first look; pixel counts shrink by stride^2)."""
+    P = model.points @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
     if model.is_mesh:
         # cast only the rays of the model's bounding box
-        box = _bbox_pixels(camera, model.points @ T_cam_model[:3, :3].T + T_cam_model[:3, 3], stride)
+        box = _bbox_pixels(camera, P, stride)
         if box is None:
             box = np.zeros(0, np.int64)
         rv = mesh_depth_at(camera, model.vertices, model.faces, T_cam_model, box) if len(box) else np.zeros(0)
@@ -100,7 +101,6 @@ def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camer
     ns, no, nv = int(sup.sum()), int(occ.sum()), int(vio.sum())
     pen = 0.0
     if plane is not None:
-        P = model.points @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
         pen = float(np.mean(P @ plane.normal + plane.offset < -tau))
     nu = int((~known).sum())
     score = ns / max(ns + nv + 0.5 * no + 0.25 * nu, 1.0) * (1.0 - pen) ** 2
