@@ -154,8 +154,8 @@ def run(dataset: Path = typer.Argument(..., help="BOP dataset folder (with model
         task = prog.add_task("detecting", total=len(ds), dets=0)
         count = {"d": 0}
 
-        def on_image(img, n, err):
-            count["d"] += n
+        def on_image(img, res, err):
+            count["d"] += len(res.detections) if res else 0
             if err:
                 prog.console.print(f"[yellow]skipped[/] scene {img.scene_id} image {img.im_id}: {escape(err)}",
                                    highlight=False, soft_wrap=True)
@@ -297,20 +297,18 @@ def demo(out: Path = typer.Option(Path("demo_out"), help="Output folder."),
     with _progress() as prog:
         task = prog.add_task("detecting", total=len(ds), dets=0)
         count = {"d": 0}
+        results = {}
 
-        def on_image(img, n, err):
-            count["d"] += n
+        def on_image(img, res, err):
+            count["d"] += len(res.detections) if res else 0
+            results.setdefault("first", (img, res))  # drawn below, without detecting again
             prog.update(task, advance=1, dets=count["d"])
 
         s = run_dataset(ds, lib, cfg, out / "run", version=__version__, on_image=on_image)
     ev = evaluate(ds, read_bop_csv(out / "run" / "results.csv"), lib)
     _print_eval(ev, lib)
-    from .detector import Detector
-
-    img = ds.images[0]
-    frame = ds.frame(img)
-    res = Detector(lib, cfg).detect(frame)
-    write_png(out / "overlay.png", draw(frame, res.detections, lib, cfg.preprocess.voxel))
+    img, res = results["first"]
+    write_png(out / "overlay.png", draw(ds.frame(img), res.detections if res else [], lib, cfg.preprocess.voxel))
     console.print(f"median {np.median(s.seconds):.2f} s per image; total {time.perf_counter() - t0:.1f} s")
     console.print(f"dataset: {data}\nresults: {out / 'run' / 'results.csv'}\noverlay: {out / 'overlay.png'}")
 

@@ -12,7 +12,7 @@ from typing import Callable
 
 from .config import PipelineConfig, dump_toml
 from .datasets.bop import BopDataset, BopImage
-from .detector import Detector
+from .detector import DetectionResult, Detector
 from .io.atomic import atomic_write_text
 from .io.results import bop_rows, write_bop_csv, write_detections_json
 from .model import ModelLibrary
@@ -28,9 +28,10 @@ class RunSummary:
 
 def run_dataset(ds: BopDataset, library: ModelLibrary, cfg: PipelineConfig, out, targets: bool = False,
                 version: str = "", record_time: bool = False,
-                on_image: Callable[[BopImage, int, str | None], None] | None = None) -> RunSummary:
+                on_image: Callable[[BopImage, DetectionResult | None, str | None], None] | None = None
+                ) -> RunSummary:
     """Detect in every image of ``ds``; ``targets`` uses scene_gt.json's object ids and counts (BOP
-    localisation). ``on_image(img, n_detections, error)`` is called after each image.
+    localisation). ``on_image(img, result, error)`` is called after each image (result None on error).
 
     The ``time`` column of results.csv is -1 (BOP's "not measured") unless ``record_time``, so that the same
     input, config and seed give a byte-identical file; per-stage times are always in the per-image JSON."""
@@ -48,7 +49,7 @@ def run_dataset(ds: BopDataset, library: ModelLibrary, cfg: PipelineConfig, out,
         except (ValueError, OSError) as e:  # InputError, FileNotFoundError, corrupt images: skip this one
             summary.failed.append((f"scene {img.scene_id} image {img.im_id}", str(e)))
             if on_image:
-                on_image(img, 0, str(e))
+                on_image(img, None, str(e))
             continue
         t = sum(result.timing_s.values())
         summary.images += 1
@@ -59,7 +60,7 @@ def run_dataset(ds: BopDataset, library: ModelLibrary, cfg: PipelineConfig, out,
         write_detections_json(out / "frames" / f"{img.scene_id:06d}_{img.im_id:06d}.json", info, result,
                               pipeline, version)
         if on_image:
-            on_image(img, len(result.detections), None)
+            on_image(img, result, None)
     write_bop_csv(out / "results.csv", rows)
     atomic_write_text(out / "config.toml", dump_toml(cfg))
     atomic_write_text(out / "failures.json", json.dumps([{"image": a, "error": b} for a, b in summary.failed],

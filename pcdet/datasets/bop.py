@@ -11,7 +11,6 @@ import numpy as np
 from ..camera import Camera
 from ..errors import InputError
 from ..frame import Frame
-from ..io.depth import read_depth_png
 
 
 @dataclass(frozen=True)
@@ -99,9 +98,8 @@ class BopDataset:
         if entry is None:
             raise InputError(f"no entry for image {img.im_id}", src)
         w, h = self.base_camera.get("width"), self.base_camera.get("height")
-        if w is None or h is None:
-            raw = read_depth_png(self.depth_path(img))
-            h, w = raw.shape
+        if w is None or h is None:  # no camera.json: the PNG header has the size (no decoding)
+            w, h = _image_size(self.depth_path(img))
         return Camera.from_dict(dict(entry), path=src, width=w, height=h)
 
     def frame(self, img: BopImage) -> Frame:
@@ -125,6 +123,18 @@ class BopDataset:
         for g in self.gt(img):
             t[g["obj_id"]] = t.get(g["obj_id"], 0) + 1
         return t
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    from PIL import Image, UnidentifiedImageError
+
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: image not found")
+    try:
+        with Image.open(path) as im:
+            return im.size
+    except (UnidentifiedImageError, OSError) as e:
+        raise InputError(f"not a readable image ({e})", path) from None
 
 
 def _is_split(p: Path) -> bool:
