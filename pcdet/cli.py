@@ -212,6 +212,7 @@ def synth(models: Path = typer.Option(MODELS_DIR, help="Folder of mesh models.")
           scenes: int = typer.Option(20, help="Number of scenes (one image each)."),
           objects: int = typer.Option(4, help="Library objects per scene."),
           instances: int = typer.Option(1, help="Up to this many copies of each chosen object."),
+          distractors: int = typer.Option(0, help="Clutter objects per scene that are not in the library."),
           seed: int = typer.Option(0, help="Random seed."),
           noise: bool = typer.Option(True, help="Apply the Kinect noise model."),
           units: str = typer.Option("auto", help="Model units: auto, m, cm, mm."),
@@ -221,7 +222,8 @@ def synth(models: Path = typer.Option(MODELS_DIR, help="Folder of mesh models.")
     from .synth import SynthConfig, synthesize
 
     lib = _library(models, PipelineConfig(), units)
-    cfg = SynthConfig(scenes=scenes, objects=objects, instances=instances, seed=seed, noise=noise)
+    cfg = SynthConfig(scenes=scenes, objects=objects, instances=instances, distractors=distractors, seed=seed,
+                      noise=noise)
     with _progress() as prog:
         task = prog.add_task("rendering", total=scenes, dets=0)
         synthesize(lib, out, cfg, progress=lambda i, n: prog.update(task, completed=i))

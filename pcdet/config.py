@@ -137,12 +137,23 @@ class VerifyConfig:
     conflict_overlap: float = 0.3
     prefilter: float = 0.15
     max_penetration: float = 0.05
+    selection: str = "threshold"
+    explain_radius: float = 0.006
+    clutter_radius: float = 0.015
+    duplicate_weight: float = 1.0
+    clutter_weight: float = 5.0
+    violation_weight: float = 1.0
 
     def __post_init__(self):
-        _positive(self, "depth_tolerance", "min_supported")
+        _positive(self, "depth_tolerance", "min_supported", "explain_radius", "clutter_radius")
         for n in ("min_score", "max_violation", "conflict_overlap", "prefilter", "max_penetration"):
             if not 0 <= getattr(self, n) <= 1:
                 raise ValueError(f"VerifyConfig.{n} must be in [0, 1], got {getattr(self, n)}")
+        if self.selection not in ("threshold", "global"):
+            raise ValueError(f"VerifyConfig.selection must be 'threshold' or 'global', got {self.selection!r}")
+        for n in ("duplicate_weight", "clutter_weight", "violation_weight"):
+            if getattr(self, n) < 0:
+                raise ValueError(f"VerifyConfig.{n} must be >= 0, got {getattr(self, n)}")
 
 
 @dataclass(frozen=True)
@@ -261,6 +272,13 @@ FIELD_DOCS = {
     "verify.conflict_overlap": "share of a detection's pixels that may be claimed by a better one",
     "verify.prefilter": "score a raw hypothesis needs before ICP",
     "verify.max_penetration": "share of model samples allowed below the supporting plane",
+    "verify.selection": "threshold: all accepted, greedy conflicts; global: the accepted subset that best "
+                        "explains the scene",
+    "verify.explain_radius": "m; global: a scene point within this of a model sample is explained by it",
+    "verify.clutter_radius": "m; global: unexplained scene points this close to explained ones are clutter",
+    "verify.duplicate_weight": "global: cost of each scene point explained twice",
+    "verify.clutter_weight": "global: cost of each clutter point no chosen detection explains",
+    "verify.violation_weight": "global: cost of see-through evidence (in scene points)",
 }
 
 

@@ -14,6 +14,7 @@ from .cloud import voxel_downsample
 from .config import PipelineConfig
 from .features import fpfh
 from .frame import Frame
+from .global_verify import candidate_terms, select
 from .grouping import Hypothesis, ransac_instances
 from .grouping.consistency import consistency_groups
 from .grouping.hough import hough_groups
@@ -145,6 +146,19 @@ class Detector:
                 hyps += h
         return hyps
 
+    def _select_global(self, scene, scene_tree, order, hyps, regs, vers) -> list[int]:
+        """The subset of ``order`` (indices of accepted hypotheses) that best explains the scene
+        (``global_verify``), best verification score first."""
+        v = self.config.verify
+        pts = []
+        for j in order:
+            T = regs[j].T_target_source
+            pts.append(self.library[hyps[j].model_index].points @ T[:3, :3].T + T[:3, 3])
+        ratio = np.array([vers[j].n_violations / max(vers[j].n_supported, 1) for j in order])
+        terms = candidate_terms(scene.points, scene_tree, pts, ratio, v.explain_radius, v.clutter_radius)
+        chosen, _ = select(terms, v.duplicate_weight, v.clutter_weight, v.violation_weight)
+        return [order[i] for i in sorted(chosen)]
+
     def detect(self, frame: Frame, targets: dict[int, int] | None = None) -> DetectionResult:
         """Detect objects in ``frame``.
 
@@ -193,8 +207,11 @@ class Detector:
                 order = [j for j in order if vers[j].accepted(cfg.verify)]
             else:
                 order = [j for j in order if vers[j].n_supported > 0]
-            kept = resolve_conflicts(order, [v.support for v in vers], cfg.verify.conflict_overlap,
-                                     frame.depth.size)
+            if targets is None and cfg.verify.selection == "global":
+                kept = self._select_global(scene, scene_tree, order, hyps, regs, vers)
+            else:
+                kept = resolve_conflicts(order, [v.support for v in vers], cfg.verify.conflict_overlap,
+                                         frame.depth.size)
             if targets is not None:
                 left = dict(targets)
                 chosen = []

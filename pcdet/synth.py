@@ -30,12 +30,15 @@ TABLE_THICKNESS = 0.02
 @dataclass(frozen=True)
 class SynthConfig:
     """scenes: number of scenes (one image each); objects: library objects per scene (distinct);
-    instances: copies of one object allowed per scene (up to this many); distance and elevation of the camera
-    (m, degrees); area: radius (m) of the table disc the objects stand in; noise: apply the sensor model."""
+    instances: copies of one object allowed per scene (up to this many); distractors: clutter objects that are
+    not in the library (random boxes, cylinders, cones, spheres and capsules, 3-12 cm; no ground truth);
+    distance and elevation of the camera (m, degrees); area: radius (m) of the table disc the objects stand in;
+    noise: apply the sensor model."""
 
     scenes: int = 20
     objects: int = 4
     instances: int = 1
+    distractors: int = 0
     distance: tuple[float, float] = (0.6, 0.9)
     elevation_deg: tuple[float, float] = (35.0, 70.0)
     area: float = 0.2
@@ -45,6 +48,8 @@ class SynthConfig:
     def __post_init__(self):
         if self.scenes < 1 or self.objects < 1 or self.instances < 1:
             raise ValueError("scenes, objects and instances must be >= 1")
+        if self.distractors < 0:
+            raise ValueError("distractors must be >= 0")
 
 
 def kinect_sigma(z: np.ndarray) -> np.ndarray:
@@ -113,47 +118,84 @@ def _table_mesh():
     return np.asarray(t.vertices), np.asarray(t.faces)
 
 
+def distractor_mesh(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A random clutter shape (vertices (V, 3) m, faces (F, 3)): box, cylinder, cone, sphere or capsule with
+    dimensions between 3 and 12 cm."""
+    import trimesh
+
+    kind = int(rng.integers(5))
+    u = lambda lo, hi: float(rng.uniform(lo, hi))  # noqa: E731
+    if kind == 0:
+        m = trimesh.creation.box((u(0.03, 0.12), u(0.03, 0.12), u(0.03, 0.12)))
+    elif kind == 1:
+        m = trimesh.creation.cylinder(radius=u(0.015, 0.05), height=u(0.03, 0.12), sections=48)
+    elif kind == 2:
+        m = trimesh.creation.cone(radius=u(0.02, 0.05), height=u(0.04, 0.12), sections=48)
+    elif kind == 3:
+        m = trimesh.creation.icosphere(subdivisions=3, radius=u(0.015, 0.045))
+    else:
+        m = trimesh.creation.capsule(height=u(0.03, 0.08), radius=u(0.015, 0.03), count=[24, 24])
+    return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+
+
+def _place(verts: np.ndarray, T_st: np.ndarray, prob: np.ndarray, cfg: SynthConfig, rng: np.random.Generator,
+           circles: list) -> np.ndarray | None:
+    """A resting pose (one of the stable ones, random yaw and position) whose footprint circle overlaps none in
+    ``circles`` (which it joins), or None after 200 tries."""
+    for _ in range(200):
+        k = rng.choice(len(T_st), p=prob)
+        T = _rot_z(rng.uniform(0, 2 * np.pi)) @ T_st[k]
+        v = verts @ T[:3, :3].T + T[:3, 3]
+        T[2, 3] -= v[:, 2].min()  # rest on the table top
+        c = (v[:, :2].max(0) + v[:, :2].min(0)) / 2
+        r = float(np.linalg.norm(v[:, :2] - c, axis=1).max())
+        r_pos = rng.uniform(0, cfg.area) ** 0.5 * cfg.area ** 0.5
+        ang = rng.uniform(0, 2 * np.pi)
+        shift = np.array([r_pos * np.cos(ang), r_pos * np.sin(ang)]) - c
+        centre = c + shift
+        if all(np.linalg.norm(centre - c2) > r + r2 + 0.003 for c2, r2 in circles):
+            T[:2, 3] += shift
+            circles.append((centre, r))
+            return T
+    return None
+
+
 def compose_scene(lib: ModelLibrary, cfg: SynthConfig, rng: np.random.Generator, placer: _Placer):
-    """Pick objects and poses on the table: a list of ``(model index, T_world_model)``."""
+    """Pick objects and poses on the table: ``(placed, clutter)``, ``placed`` a list of ``(model index,
+    T_world_model)``, ``clutter`` a list of ``(vertices, faces, T_world_mesh)`` of distractors."""
     n_obj = min(cfg.objects, len(lib))
     chosen = rng.choice(len(lib), size=n_obj, replace=False)
     items = []
     for i in chosen:
         copies = int(rng.integers(1, cfg.instances + 1)) if cfg.instances > 1 else 1
         items += [int(i)] * copies
-    placed, circles = [], []
+    placed, circles, clutter = [], [], []
     for i in items:
-        T_st, prob = placer.stable(i)
-        verts = lib[i].vertices
-        for _ in range(200):
-            k = rng.choice(len(T_st), p=prob)
-            T = _rot_z(rng.uniform(0, 2 * np.pi)) @ T_st[k]
-            v = verts @ T[:3, :3].T + T[:3, 3]
-            T[2, 3] -= v[:, 2].min()  # rest on the table top
-            c = (v[:, :2].max(0) + v[:, :2].min(0)) / 2
-            r = float(np.linalg.norm(v[:, :2] - c, axis=1).max())
-            r_pos = rng.uniform(0, cfg.area) ** 0.5 * cfg.area ** 0.5
-            ang = rng.uniform(0, 2 * np.pi)
-            shift = np.array([r_pos * np.cos(ang), r_pos * np.sin(ang)]) - c
-            centre = c + shift
-            if all(np.linalg.norm(centre - c2) > r + r2 + 0.003 for c2, r2 in circles):
-                T[:2, 3] += shift
-                placed.append((i, T))
-                circles.append((centre, r))
-                break
-    return placed
+        T = _place(lib[i].vertices, *placer.stable(i), cfg, rng, circles)
+        if T is not None:
+            placed.append((i, T))
+    for _ in range(cfg.distractors):
+        v, f = distractor_mesh(rng)
+        T = _place(v, *_Placer({0: (v, f)}).stable(0), cfg, rng, circles)
+        if T is not None:
+            clutter.append((v, f, T))
+    return placed, clutter
 
 
-def render_scene(lib, placed, T_world_cam, camera, rng, noise=True):
-    """Render one view: returns (raw depth uint16 mm, rgb uint8, gt list, gt_info list)."""
+def render_scene(lib, placed, T_world_cam, camera, rng, noise=True, clutter=()):
+    """Render one view of the library objects ``placed`` and the distractors ``clutter`` (see
+    ``compose_scene``): returns (raw depth uint16 mm, rgb uint8, gt list, gt_info list); ground truth covers
+    ``placed`` only."""
     T_cam_world = np.linalg.inv(T_world_cam)
     tv, tf = _table_mesh()
     meshes = [(tv, tf, T_cam_world)] + [(lib[i].vertices, lib[i].faces, T_cam_world @ T) for i, T in placed]
+    meshes += [(v, f, T_cam_world @ T) for v, f, T in clutter]
     r = render_meshes(camera, meshes)
     raw = apply_kinect_noise(r.depth, rng) if noise else np.rint(r.depth * 1000).astype(np.uint16)
-    # shaded colour image: Lambert from a light at the camera, one hue per object, grey table
+    # shaded colour image: Lambert from a light at the camera, one hue per object, grey table and clutter
     shade = np.clip(-r.normals[..., 2], 0.15, 1.0)[..., None]
-    palette = np.array([[200, 200, 200]] + [_colour(lib[i].obj_id) for i, _ in placed], float)
+    palette = np.array([[200, 200, 200]] + [_colour(lib[i].obj_id) for i, _ in placed]
+                       + [[120, 120, 120]] * len(clutter), float)
     rgb = np.where(r.ids[..., None] >= 0, palette[np.maximum(r.ids, 0)] * shade, 30).astype(np.uint8)
     gt, info = [], []
     for k, (i, T) in enumerate(placed, start=1):
@@ -215,14 +257,14 @@ def synthesize(lib: ModelLibrary, out, cfg: SynthConfig, camera: Camera = KINECT
                                                         "fy": camera.fy, "width": camera.width,
                                                         "height": camera.height, "depth_scale": 1.0}, indent=1))
     for s in range(1, cfg.scenes + 1):
-        placed = compose_scene(lib, cfg, rng, placer)
+        placed, clutter = compose_scene(lib, cfg, rng, placer)
         az = rng.uniform(0, 2 * np.pi)
         el = np.radians(rng.uniform(*cfg.elevation_deg))
         dist = rng.uniform(*cfg.distance)
         eye = dist * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
         target = np.array([*rng.normal(0, 0.02, 2), 0.03])
         T_world_cam = _look_at(eye, target)
-        raw, rgb, gt, info = render_scene(lib, placed, T_world_cam, camera, rng, cfg.noise)
+        raw, rgb, gt, info = render_scene(lib, placed, T_world_cam, camera, rng, cfg.noise, clutter)
         sdir = out / "test" / f"{s:06d}"
         write_depth_png(sdir / "depth" / "000000.png", raw)
         write_png(sdir / "rgb" / "000000.png", rgb)

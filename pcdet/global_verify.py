@@ -1,0 +1,99 @@
+"""Global hypothesis verification: choose the set of hypotheses that best explains the scene.
+
+After Aldoma, Tombari, Di Stefano and Vincze (ECCV 2012), in the scene's point domain. Each candidate h (a
+model at a refined pose) *explains* the scene points within ``explain_radius`` of its surface samples, and its
+*clutter* is the scene points within ``clutter_radius`` of those it explains that it does not explain itself:
+a model fitted to one face of something else leaves the rest of that thing unexplained next to it. For a
+selection x of candidates, with c(p) the number of selected candidates explaining scene point p:
+
+    f(x) = #{p : c(p) >= 1}                                   scene points explained
+         - w_dup     * sum_p max(c(p) - 1, 0)                  points claimed twice (duplicates, rival models)
+         - w_clutter * sum_{h in x} #{p in clutter(h) : c(p) = 0}   clutter left unexplained by every choice
+         - w_viol    * sum_{h in x} v(h)                       see-through evidence, in point units
+
+v(h) = explained(h) * violations / supported from the pixel-level check (``verify.verify``). The maximiser is
+found by deterministic local search: start empty, apply the best single switch (add or drop one candidate)
+while it raises f. Clutter that another selected candidate explains costs nothing, so neighbouring true
+objects do not penalise each other.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+
+@dataclass(frozen=True)
+class GlobalTerms:
+    """Per-candidate point sets (indices into the scene points) and the violation cost."""
+
+    explained: list[np.ndarray]
+    clutter: list[np.ndarray]
+    violation: np.ndarray
+
+
+def candidate_terms(scene_points: np.ndarray, scene_tree: cKDTree, model_points: list[np.ndarray],
+                    violation_ratio: np.ndarray, explain_radius: float, clutter_radius: float) -> GlobalTerms:
+    """scene_points : (N, 3) m; model_points : per candidate (M_h, 3) surface samples already at the pose (m);
+    violation_ratio : (H,) violating / supported pixels of each candidate."""
+    explained, clutter = [], []
+    for P in model_points:
+        lo, hi = P.min(axis=0) - explain_radius, P.max(axis=0) + explain_radius
+        box = np.flatnonzero(np.all((scene_points >= lo) & (scene_points <= hi), axis=1))
+        if len(box) == 0:
+            explained.append(np.zeros(0, np.int64))
+            clutter.append(np.zeros(0, np.int64))
+            continue
+        d, _ = cKDTree(P).query(scene_points[box], distance_upper_bound=explain_radius)
+        e = box[np.isfinite(d)]
+        near = scene_tree.query_ball_point(scene_points[e], clutter_radius) if len(e) else []
+        near = np.unique(np.concatenate([np.asarray(n, np.int64) for n in near])) if len(e) else e
+        explained.append(e)
+        clutter.append(np.setdiff1d(near, e, assume_unique=True))
+    viol = np.array([len(e) for e in explained], float) * np.asarray(violation_ratio, float)
+    return GlobalTerms(explained, clutter, viol)
+
+
+def select(terms: GlobalTerms, w_dup: float, w_clutter: float, w_viol: float, max_steps: int = 200
+           ) -> tuple[list[int], float]:
+    """Maximise f (module docstring) over subsets of the candidates. Returns (chosen indices in the order
+    they were added, f). Ties are broken by the lower index, so the result depends only on the input."""
+    H = len(terms.explained)
+    if H == 0:
+        return [], 0.0
+    # work on the union of the points any candidate touches, renumbered 0..U-1
+    dom = np.unique(np.concatenate([*terms.explained, *terms.clutter]))
+    E = [np.searchsorted(dom, e) for e in terms.explained]
+    C = [np.searchsorted(dom, c) for c in terms.clutter]
+    U = len(dom)
+
+    def value(sel: np.ndarray) -> float:
+        cnt = np.zeros(U, np.int64)
+        for h in np.flatnonzero(sel):
+            cnt[E[h]] += 1
+        f = float(np.count_nonzero(cnt)) - w_dup * float(np.maximum(cnt - 1, 0).sum())
+        for h in np.flatnonzero(sel):
+            f -= w_clutter * float(np.count_nonzero(cnt[C[h]] == 0)) + w_viol * terms.violation[h]
+        return f
+
+    sel = np.zeros(H, bool)
+    cur = 0.0
+    order: list[int] = []
+    for _ in range(max_steps):
+        best, best_h = cur, -1
+        for h in range(H):
+            sel[h] = ~sel[h]
+            v = value(sel)
+            sel[h] = ~sel[h]
+            if v > best + 1e-9:
+                best, best_h = v, h
+        if best_h < 0:
+            break
+        sel[best_h] = ~sel[best_h]
+        cur = best
+        if sel[best_h]:
+            order.append(best_h)
+        else:
+            order.remove(best_h)
+    return order, cur
