@@ -137,7 +137,7 @@ class VerifyConfig:
     conflict_overlap: float = 0.3
     prefilter: float = 0.15
     max_penetration: float = 0.05
-    selection: str = "threshold"
+    selection: str = "global"
     explain_radius: float = 0.006
     clutter_radius: float = 0.015
     duplicate_weight: float = 1.0

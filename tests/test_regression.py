@@ -1,11 +1,12 @@
-"""Synthetic regression suite: 20 scenes, 4 objects each, from models/, fixed seed.
+"""Synthetic regression suites from models/, fixed seeds: 20 scenes with 4 objects each, and 20 crowded scenes.
 
 Thresholds (issue 2): with the ground-truth object ids given (BOP localisation), recall at ADD < 0.1 d of at
 least 0.85; without them, precision >= 0.9 at recall >= 0.8 (ADD-S < 0.1 d). Measured on this suite: 0.875;
-0.908 at 0.863. Other seeds land on both sides of the bar (seed 7: 0.95; seed 99: 0.825), see the README.
+0.959 at 0.887 (global verification; 0.920 at 0.863 with thresholds only). Other seeds land on both sides of the bar (seed 7: 0.95; seed 99: 0.825), see the README.
 """
 import pytest
 
+from pcdet.config import load_pipeline
 from pcdet.datasets.bop import BopDataset
 from pcdet.detector import Detector
 from pcdet.evaluate import evaluate
@@ -37,5 +38,24 @@ def test_localisation_recall(suite, library):
 @pytest.mark.slow
 def test_detection_precision_and_recall(suite, library):
     ev = evaluate(suite, _estimates(suite, Detector(library), False), library)
+    assert ev.overall["recall_adds"] >= 0.8, ev.overall
+    assert ev.overall["precision_adds"] >= 0.9, ev.overall
+
+
+@pytest.fixture(scope="module")
+def crowded(tmp_path_factory, library):
+    out = tmp_path_factory.mktemp("crowded")
+    cfg = SynthConfig(scenes=20, objects=3, instances=3, distractors=3, seed=2026)
+    return BopDataset(synthesize(library, out, cfg))
+
+
+@pytest.mark.slow
+def test_many_instances_among_distractors(crowded, library):
+    """Issue 3: up to 3 copies of each of 3 objects plus 3 clutter shapes not in the library, no targets,
+    pipelines/crowded.toml: recall (ADD-S < 0.1 d) >= 0.8 and precision >= 0.9. Measured: 0.870 / 0.980 on
+    115 instances (the default pipeline with per-detection thresholds only: 0.791 / 0.798)."""
+    ev = evaluate(crowded, _estimates(crowded, Detector(library, load_pipeline("crowded")), False), library,
+                  with_vsd=False)
+    assert ev.overall["instances"] == 115
     assert ev.overall["recall_adds"] >= 0.8, ev.overall
     assert ev.overall["precision_adds"] >= 0.9, ev.overall

@@ -44,3 +44,28 @@ def test_same_seed_same_bytes(tmp_path, library):
     b = synthesize(library, tmp_path / "b", SynthConfig(scenes=1, objects=2, seed=3))
     for rel in ("test/000001/depth/000000.png", "test/000001/scene_gt.json"):
         assert (a / rel).read_bytes() == (b / rel).read_bytes()
+
+
+def test_distractors_are_rendered_without_ground_truth(tmp_path, library):
+    """Distractors put surfaces in front of the table that no ground-truth object explains: rendering only the
+    table and the ground-truth objects from the scene's camera leaves over 500 pixels that the depth image has
+    more than 2 cm nearer; without distractors, none."""
+    from pcdet.render import render_meshes
+    from pcdet.synth import _table_mesh
+
+    def unexplained(cfg, name):
+        ds = BopDataset(synthesize(library, tmp_path / name, cfg))
+        img = next(iter(ds))
+        f = ds.frame(img)
+        cam = json.loads((ds.scene_dir(img.scene_id) / "scene_camera.json").read_text())["0"]
+        T_cw = np.eye(4)
+        T_cw[:3, :3] = np.reshape(cam["cam_R_w2c"], (3, 3))
+        T_cw[:3, 3] = np.array(cam["cam_t_w2c"]) / 1000
+        meshes = [(*_table_mesh(), T_cw)] + [(library.by_id(g["obj_id"]).vertices,
+                                              library.by_id(g["obj_id"]).faces, g["T_cam_model"])
+                                             for g in ds.gt(img)]
+        expected = render_meshes(f.camera, meshes).depth
+        return int(((f.depth > 0) & ((expected == 0) | (f.depth < expected - 0.02))).sum())
+
+    assert unexplained(SynthConfig(scenes=1, objects=2, distractors=3, seed=5, noise=False), "a") > 500
+    assert unexplained(SynthConfig(scenes=1, objects=2, seed=5, noise=False), "b") == 0
