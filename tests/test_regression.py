@@ -2,7 +2,8 @@
 
 Thresholds (issue 2): with the ground-truth object ids given (BOP localisation), recall at ADD < 0.1 d of at
 least 0.85; without them, precision >= 0.9 at recall >= 0.8 (ADD-S < 0.1 d). Measured on this suite: 0.875;
-0.959 at 0.887 (global verification; 0.920 at 0.863 with thresholds only). Other seeds land on both sides of the bar (seed 7: 0.95; seed 99: 0.825), see the README.
+0.959 at 0.887 (global verification; 0.920 at 0.863 with thresholds only). Other seeds land on both sides
+of the bar (seed 7: 0.95; seed 99: 0.825), see the README.
 """
 import pytest
 
