@@ -114,11 +114,11 @@ def detect(models: Path = typer.Option(MODELS_DIR, help="Folder of object models
 
 def _print_detections(res):
     t = Table(title=f"{len(res.detections)} detection(s) in {sum(res.timing_s.values()):.2f} s")
-    for c in ("model", "obj_id", "score", "x (m)", "y (m)", "z (m)", "inliers", "visible"):
+    for c in ("model", "obj_id", "score", "x (m)", "y (m)", "z (m)", "group", "inliers", "visible"):
         t.add_column(c, justify="right" if c != "model" else "left")
     for d in res.detections:
         x, y, z = d.T_cam_model[:3, 3]
-        t.add_row(d.model, str(d.obj_id), f"{d.score:.3f}", f"{x:.3f}", f"{y:.3f}", f"{z:.3f}", str(d.n_inliers),
+        t.add_row(d.model, str(d.obj_id), f"{d.score:.3f}", f"{x:.3f}", f"{y:.3f}", f"{z:.3f}", str(d.group_size), str(d.n_inliers),
                   f"{d.visible_fraction:.2f}")
     out_console.print(t)
 

@@ -73,9 +73,17 @@ class ModelConfig:
 class FeatureConfig:
     radius: float = 0.025
     max_nn: int = 100
+    lrf_radius: float = 0.0
 
     def __post_init__(self):
         _positive(self, "radius", "max_nn")
+        if self.lrf_radius < 0:
+            raise ValueError(f"FeatureConfig.lrf_radius must be >= 0, got {self.lrf_radius}")
+
+    @property
+    def lrf_support(self) -> float:
+        """m; the radius local reference frames use: ``lrf_radius``, or ``radius`` when that is 0."""
+        return self.lrf_radius or self.radius
 
 
 @dataclass(frozen=True)
@@ -244,6 +252,7 @@ FIELD_DOCS = {
     "keypoints.iss_non_max_radius": "m; ISS non-maximum suppression radius",
     "features.radius": "m; FPFH support radius",
     "features.max_nn": "most neighbours in an FPFH",
+    "features.lrf_radius": "m; SHOT local reference frame support (Hough grouping); 0: features.radius",
     "matching.k": "candidate model keypoints kept per scene keypoint (nearest in FPFH space)",
     "matching.ratio": "Lowe ratio test on the nearest two (1.0: off, keep k)",
     "matching.mutual": "keep only mutual nearest neighbours",

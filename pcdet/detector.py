@@ -32,7 +32,8 @@ from .verify import Verification, resolve_conflicts, verify
 @dataclass
 class Detection:
     """One found object instance. ``T_cam_model`` (4, 4) maps model points (m) into the camera frame (for
-    point-cloud inputs: into the cloud file's frame)."""
+    point-cloud inputs: into the cloud file's frame). ``group_size``: correspondences in the group the grouper
+    proposed it from; ``n_inliers``: correspondences that agree with it after the robust refit."""
 
     model: str
     obj_id: int
@@ -42,10 +43,12 @@ class Detection:
     fitness: float
     rmse_m: float
     visible_fraction: float
+    group_size: int = 0
 
     def to_dict(self) -> dict:
         return {"model": self.model, "obj_id": self.obj_id, "score": round(float(self.score), 6),
                 "T_cam_model": np.round(self.T_cam_model, 9).tolist(), "n_inliers": int(self.n_inliers),
+                "group_size": int(self.group_size),
                 "fitness": round(float(self.fitness), 6), "rmse_m": round(float(self.rmse_m), 9),
                 "visible_fraction": round(float(self.visible_fraction), 6)}
 
@@ -110,7 +113,7 @@ class Detector:
         scene_lrf = None
         if cfg.grouping.method == "hough":
             with tm("lrf"):
-                scene_lrf, ok = shot_lrf(scene.points, kpts, cfg.features.radius, scene_tree)
+                scene_lrf, ok = shot_lrf(scene.points, kpts, cfg.features.lrf_support, scene_tree)
                 scene_lrf[~ok] = np.nan
         with tm("matching"):
             cands = {i: match_features(feats, self.library[i].features, cfg.matching, self._trees[i],
@@ -226,6 +229,6 @@ class Detector:
             m = self.library[hyps[j].model_index]
             r, v = regs[j], vers[j]
             dets.append(Detection(m.name, m.obj_id, v.score, frame.T_input_cam @ r.T_target_source,
-                                  hyps[j].n_inliers, r.fitness, r.rmse_m, v.visible_fraction))
+                                  hyps[j].n_inliers, r.fitness, r.rmse_m, v.visible_fraction, hyps[j].group))
         stats["detections"] = len(dets)
         return DetectionResult(dets, tm.t, stats)

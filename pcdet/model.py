@@ -266,7 +266,7 @@ def view_features(points, normals, vertices, faces, diameter: float, cfg: Pipeli
         vn = estimate_normals(vp, pp.normal_radius, pp.normal_max_nn)  # toward the camera, as in a scene
         kp = select_keypoints(vp, cfg.keypoints)
         feats = fpfh(vp, vn, kp, cfg.features)
-        F, ok = shot_lrf(vp, vp[kp], cfg.features.radius)
+        F, ok = shot_lrf(vp, vp[kp], cfg.features.lrf_support)
         F = F @ R  # camera-frame axes -> model-frame axes (rows)
         F[~ok] = np.nan
         Rt = R.T

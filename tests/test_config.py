@@ -40,3 +40,19 @@ def test_bad_presets(tmp_path, text, words):
 def test_unknown_preset_lists_available():
     with pytest.raises(FileNotFoundError, match="available: .*default"):
         load_pipeline("no_such_preset")
+
+
+@pytest.mark.parametrize("path", sorted(PIPELINES_DIR.glob("*.toml")), ids=lambda p: p.stem)
+def test_every_shipped_preset_loads_and_differs_only_where_it_says(path):
+    """Each preset in pipelines/ loads; a non-default preset changes at least one field, and every field it
+    sets in its file ends up in the config."""
+    import tomllib
+
+    cfg = load_pipeline(path.stem)
+    text = tomllib.loads(path.read_text())
+    for section, values in text.items():
+        if isinstance(values, dict):
+            for k, v in values.items():
+                assert getattr(getattr(cfg, section), k) == v, (section, k)
+    if path.stem not in ("default", "ransac"):
+        assert cfg != PipelineConfig()

@@ -66,5 +66,5 @@ def consistency_groups(scene_pts: np.ndarray, cand: np.ndarray, distance: np.nda
 
     T0 = np.array([kabsch(cm[g], cs[g]) for g in groups])
     T, inls = refit_batch(T0, cm, cs, cfg.inlier_distance)
-    return [Hypothesis(model_index, T[i], inls[i]) for i in range(len(groups))
+    return [Hypothesis(model_index, T[i], inls[i], len(groups[i])) for i in range(len(groups))
             if len(np.unique(inls[i] // k)) >= cfg.min_inliers]

@@ -98,4 +98,4 @@ def hough_groups(scene_pts: np.ndarray, scene_lrf: np.ndarray, cand: np.ndarray,
     keep = _distinct(T, order, diameter, max_groups)
     if stats is not None:
         stats["groups"] = [{"votes": meta[i][0], "group": meta[i][1], "inliers": int(size[i])} for i in keep]
-    return [Hypothesis(model_index, T[i], valid[inls[i]]) for i in keep]
+    return [Hypothesis(model_index, T[i], valid[inls[i]], meta[i][1]) for i in keep]

@@ -102,7 +102,7 @@ def ransac_instances(scene_pts: np.ndarray, cand: np.ndarray, model_pts: np.ndar
                                   cn)
             if not found:
                 break
-            out += [Hypothesis(model_index, T, inl) for T, inl in found]
+            out += [Hypothesis(model_index, T, inl, len(inl)) for T, inl in found]
             Tb, inl = found[0]
             active[inl] = False
             if model_cloud is not None:  # clear the surface the best pose explains
