@@ -213,10 +213,7 @@ class PipelineConfig:
         return cls(**kwargs)
 
 
-def load_pipeline(name_or_path: str | Path | None = None) -> PipelineConfig:
-    """A preset by name (``pipelines/<name>.toml``) or a TOML file path; ``None`` gives the defaults."""
-    if name_or_path is None:
-        return PipelineConfig()
+def _preset_path(name_or_path: str | Path) -> Path:
     p = Path(name_or_path)
     if not p.suffix and not p.exists():
         p = PIPELINES_DIR / f"{name_or_path}.toml"
@@ -225,11 +222,28 @@ def load_pipeline(name_or_path: str | Path | None = None) -> PipelineConfig:
             raise FileNotFoundError(f"{name_or_path}: no such pipeline preset; available: {names}")
     if not p.is_file():
         raise FileNotFoundError(f"{p}: pipeline file not found")
-    try:
-        data = tomllib.loads(p.read_text())
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(f"not valid TOML ({e})", p) from None
-    return PipelineConfig.from_dict(data, source=str(p))
+    return p
+
+
+def load_pipeline(name_or_path: str | Path | None = None) -> PipelineConfig:
+    """A preset by name (``pipelines/<name>.toml``) or a TOML file path; ``None`` gives the defaults. Presets
+    joined by ``+`` are layered left to right, field by field: ``"crowded+hough"`` is the crowded preset with
+    the Hough preset's grouping."""
+    if name_or_path is None:
+        return PipelineConfig()
+    parts = [name_or_path] if isinstance(name_or_path, Path) or Path(name_or_path).exists() \
+        else str(name_or_path).split("+")
+    data: dict = {}
+    for part in parts:
+        p = _preset_path(part)
+        try:
+            layer = tomllib.loads(p.read_text())
+        except tomllib.TOMLDecodeError as e:
+            raise InputError(f"not valid TOML ({e})", p) from None
+        PipelineConfig.from_dict(layer, source=str(p))  # each layer must be valid on its own
+        for key, value in layer.items():
+            data[key] = {**data.get(key, {}), **value} if isinstance(value, dict) else value
+    return PipelineConfig.from_dict(data, source=str(name_or_path))
 
 
 FIELD_DOCS = {

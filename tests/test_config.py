@@ -56,3 +56,11 @@ def test_every_shipped_preset_loads_and_differs_only_where_it_says(path):
                 assert getattr(getattr(cfg, section), k) == v, (section, k)
     if path.stem not in ("default", "ransac"):
         assert cfg != PipelineConfig()
+
+
+def test_presets_layer_left_to_right():
+    cfg = load_pipeline("crowded+hough")
+    assert cfg.grouping == load_pipeline("hough").grouping
+    assert cfg.verify == load_pipeline("crowded").verify and cfg.refine == load_pipeline("crowded").refine
+    with pytest.raises(FileNotFoundError, match="nosuch"):
+        load_pipeline("crowded+nosuch")
