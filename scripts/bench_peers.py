@@ -4,6 +4,7 @@ Methods (each is told which objects are in the frame, as in BOP's localisation t
 object instance):
   pcdet              Detector with --targets gt
   pcdet-no-targets   Detector searching all six models; its best detections of each present object are scored
+  pcdet-gc, pcdet-hough   Detector with --targets gt and pipelines/gc.toml, pipelines/hough.toml
   o3d-tutorial       Open3D's tutorial recipe on the whole frame: voxel grid, normals, FPFH,
                      registration_ransac_based_on_feature_matching, point-to-plane ICP
   o3d-careful        the recipe a careful user writes: range crop, dominant plane removed, DBSCAN clusters,
@@ -23,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from pcdet._o3d import o3d
-from pcdet.config import PipelineConfig
+from pcdet.config import load_pipeline
 from pcdet.datasets.bop import BopDataset
 from pcdet.detector import Detector
 from pcdet.evaluate import evaluate
@@ -149,13 +150,22 @@ class OpenCVPPF:
 
 class Pcdet:
     name = "pcdet"
+    preset = "default"
 
     def __init__(self, lib):
-        self.det = Detector(lib, PipelineConfig())
+        self.det = Detector(lib, load_pipeline(self.preset))
 
     def __call__(self, frame, targets):
         r = self.det.detect(frame, targets)
         return [(d.obj_id, d.score, d.T_cam_model) for d in r.detections]
+
+
+class PcdetGC(Pcdet):
+    name, preset = "pcdet-gc", "gc"
+
+
+class PcdetHough(Pcdet):
+    name, preset = "pcdet-hough", "hough"
 
 
 class PcdetFree(Pcdet):
@@ -177,7 +187,8 @@ def main():
     ap.add_argument("--objects", type=int, default=4)
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--data", type=Path, default=None, help="existing BOP dataset (default: synthesise one)")
-    ap.add_argument("--only", default="pcdet,pcdet-no-targets,o3d-tutorial,o3d-careful,opencv-ppf")
+    ap.add_argument("--only", default="pcdet,pcdet-no-targets,pcdet-gc,pcdet-hough,o3d-tutorial,o3d-careful,"
+                    "opencv-ppf")
     args = ap.parse_args()
     lib = ModelLibrary.from_folder(ROOT / "models")
     tmp = None
@@ -187,7 +198,7 @@ def main():
                                SynthConfig(scenes=args.scenes, objects=args.objects, seed=args.seed))
     ds = BopDataset(args.data)
     frames = [(img, ds.frame(img), ds.targets(img)) for img in ds]
-    makers = {"pcdet": Pcdet, "pcdet-no-targets": PcdetFree, "o3d-tutorial": O3DTutorial,
+    makers = {"pcdet": Pcdet, "pcdet-no-targets": PcdetFree, "pcdet-gc": PcdetGC, "pcdet-hough": PcdetHough, "o3d-tutorial": O3DTutorial,
               "o3d-careful": O3DCareful, "opencv-ppf": OpenCVPPF}
     rows = []
     for name in args.only.split(","):
