@@ -49,12 +49,13 @@ def ok(hyps, T):
     return rotation_error_deg(E[:3, :3], T[:3, :3]) < 2 and np.linalg.norm(E[:3, 3] - T[:3, 3]) < 0.01
 
 
-def synthetic(trials, methods, n=1000):
+def synthetic(trials, methods, n=1000, lrf_noise_deg=5.0):
     m = ModelLibrary.from_folder(ROOT / "models")[0]
     cfg = GroupingConfig()
     good = np.flatnonzero(~np.isnan(m.kp_lrfs[:, 0, 0]))
     ref = m.points.mean(axis=0)
-    print(f"\n{n} correspondences per trial, {trials} trials")
+    print(f"\n{n} correspondences per trial, {trials} trials, 1 mm point noise, scene LRFs turned by "
+          f"{lrf_noise_deg:g} deg (standard deviation)")
     print("| outliers | " + " | ".join(f"{x} success | {x} median ms" for x in methods) + " |")
     print("|---|" + "---|---|" * len(methods))
     for share in (0.5, 0.9, 0.95, 0.99):
@@ -67,7 +68,12 @@ def synthetic(trials, methods, n=1000):
             T[:3, 3] = rng.normal(0, 0.1, 3) + [0, 0, 0.8]
             S = m.kp_points[idx] @ T[:3, :3].T + T[:3, 3] + rng.normal(0, 0.001, (n, 3))
             N = m.kp_normals[idx] @ T[:3, :3].T
-            F = m.kp_lrfs[idx] @ T[:3, :3].T  # the scene keypoints' LRFs: the model's, rotated
+            F = m.kp_lrfs[idx] @ T[:3, :3].T  # the scene keypoints' LRFs: the model's, rotated ...
+            # ... and perturbed: a random axis, an angle with standard deviation lrf_noise_deg
+            axis = rng.normal(size=(n, 3))
+            axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+            jitter = Rotation.from_rotvec(axis * np.radians(lrf_noise_deg) * rng.normal(size=(n, 1))).as_matrix()
+            F = F @ np.transpose(jitter, (0, 2, 1))
             cand = idx.copy()
             bad = rng.random(n) < share
             cand[bad] = rng.choice(good, bad.sum())
@@ -117,6 +123,7 @@ if __name__ == "__main__":
     ap.add_argument("--trials", type=int, default=30)
     ap.add_argument("--methods", default="ransac,gc,hough")
     ap.add_argument("--n", type=int, default=1000, help="correspondences per synthetic trial")
+    ap.add_argument("--lrf-noise-deg", type=float, default=5.0, help="scene LRF perturbation (Hough only)")
     a = ap.parse_args()
-    synthetic(a.trials, a.methods.split(","), a.n)
+    synthetic(a.trials, a.methods.split(","), a.n, a.lrf_noise_deg)
     teaser([x for x in a.methods.split(",") if x != "hough"])  # no LRFs without normals

@@ -6,7 +6,7 @@ reference point lies in the scene: s + F_s^T F_m (c - m), and for the rotation F
 grid with trilinear interpolation; every local maximum with at least ``hough_min_votes`` is a candidate. Its
 voters (correspondences whose predicted reference point falls within one bin of the peak) are then required
 to agree on the rotation too, which makes the grouping 6-DoF: the voter whose rotation has the most others
-within ``hough_rotation_tol_deg`` anchors the group, the group is fitted by robust Kabsch, and candidates that
+within ``hough_rotation_tol_deg`` (among at most 64 evenly spaced voters) anchors the group, the group is fitted by robust Kabsch, and candidates that
 describe the same instance are merged (largest first). Deterministic: no random draws.
 """
 from __future__ import annotations
@@ -56,7 +56,12 @@ def hough_groups(scene_pts: np.ndarray, scene_lrf: np.ndarray, cand: np.ndarray,
                 keys.append(base + [dx, dy, dz])
                 weights.append(w)
     cells = np.concatenate(keys)
-    uniq, inv = np.unique(cells, axis=0, return_inverse=True)
+    # one int64 key per cell (a 1-D unique is far faster than unique rows)
+    lo = cells.min(axis=0)
+    span = cells.max(axis=0) - lo + 1
+    code = ((cells[:, 0] - lo[0]) * span[1] + (cells[:, 1] - lo[1])) * span[2] + (cells[:, 2] - lo[2])
+    ucode, inv = np.unique(code, return_inverse=True)
+    uniq = np.column_stack([ucode // (span[1] * span[2]), ucode // span[2] % span[1], ucode % span[2]]) + lo
     votes = np.bincount(inv.reshape(-1), weights=np.concatenate(weights))
     # local maxima over the 26-neighbourhood
     lookup = {tuple(c): v for c, v in zip(uniq.tolist(), votes)}
@@ -78,10 +83,11 @@ def hough_groups(scene_pts: np.ndarray, scene_lrf: np.ndarray, cand: np.ndarray,
         if len(voters) < cfg.min_inliers:
             continue
         Rv = rot[voters]
-        cosang = (np.einsum("aij,bij->ab", Rv, Rv) - 1) / 2  # cos of the relative rotation, all pairs
+        # anchor candidates: all voters, or an evenly spaced 64 of them when there are more (deterministic)
+        anchors = np.unique(np.linspace(0, len(voters) - 1, min(len(voters), 64)).astype(np.int64))
+        cosang = (np.einsum("aij,bij->ab", Rv[anchors], Rv) - 1) / 2  # cos of the relative rotations
         agree = cosang > cos_tol
-        anchor = int(np.argmax(agree.sum(axis=1)))
-        group = voters[agree[anchor]]
+        group = voters[agree[int(np.argmax(agree.sum(axis=1)))]]
         if len(np.unique(si[group])) < cfg.min_inliers:
             continue
         cands.append(kabsch(model_pts[mi[group]], scene_pts[si[group]]))
