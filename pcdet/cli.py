@@ -169,9 +169,11 @@ def run(dataset: Path = typer.Argument(..., help="BOP dataset folder (with model
         raise typer.Exit(2 if s.images == 0 else 0)
 
 
-def _progress():
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                    TextColumn("{task.fields[dets]} detections"), TimeElapsedColumn(), console=console)
+def _progress(detections: bool = True):
+    cols = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn()]
+    if detections:
+        cols.append(TextColumn("{task.fields[dets]} detections"))
+    return Progress(*cols, TimeElapsedColumn(), console=console)
 
 
 @app.command()
@@ -224,8 +226,8 @@ def synth(models: Path = typer.Option(MODELS_DIR, help="Folder of mesh models.")
     lib = _library(models, PipelineConfig(), units)
     cfg = SynthConfig(scenes=scenes, objects=objects, instances=instances, distractors=distractors, seed=seed,
                       noise=noise)
-    with _progress() as prog:
-        task = prog.add_task("rendering", total=scenes, dets=0)
+    with _progress(detections=False) as prog:
+        task = prog.add_task("rendering", total=scenes)
         synthesize(lib, out, cfg, progress=lambda i, n: prog.update(task, completed=i))
     console.print(f"{scenes} scene(s) -> {out}")
 

@@ -5,6 +5,7 @@ Both may be meshes or point clouds (any format ``load_model`` reads); units are 
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -15,9 +16,11 @@ from .config import PipelineConfig, RefineConfig
 from .errors import InputError
 from .features import fpfh
 from .grouping.consistency import consistency_groups
+from .grouping.hough import hough_groups
 from .grouping.pairs import scene_pairs
 from .grouping.ransac import ransac_instances
 from .keypoints import select_keypoints
+from .lrf import shot_lrf
 from .matching import match_features
 from .model import Geometry, _diameter, _outward_normals, load_geometry
 from .refine import RegistrationResult, icp
@@ -90,8 +93,16 @@ def register(source, target, config: RegisterConfig | None = None, units="auto")
     elif cfg.grouping == "ransac":
         hyps = ransac_instances(tp[tkp], cand.model, sp[skp], sn[skp], pairs, diameter, pc.grouping,
                                 np.random.default_rng(cfg.seed))
+    elif cfg.grouping == "hough":
+        frames = []
+        for pts, kp in ((tp, tkp), (sp, skp)):
+            F, ok = shot_lrf(pts, pts[kp], pc.features.radius)
+            F[~ok] = np.nan
+            frames.append(F)
+        gcfg = dataclasses.replace(pc.grouping, hough_bin=10 * voxel, hough_rotation_tol_deg=35.0)
+        hyps = hough_groups(tp[tkp], frames[0], cand.model, sp[skp], frames[1], sp.mean(axis=0), diameter, gcfg)
     else:
-        raise InputError(f"grouping {cfg.grouping!r} is not available for registration; use 'ransac' or 'gc'")
+        raise InputError(f"grouping {cfg.grouping!r} is not available; use 'ransac', 'gc' or 'hough'")
     t2 = time.perf_counter()
     if not hyps:
         raise InputError("no consistent alignment found: do the inputs overlap, and are they in the same units?")

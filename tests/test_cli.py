@@ -48,7 +48,7 @@ def test_detect_writes_json_and_overlay(scene):
     assert set(doc) == {"pcdet_version", "frame", "pipeline", "timing_s", "detections"}
     assert len(doc["detections"]) >= 2
     d = doc["detections"][0]
-    assert set(d) == {"model", "obj_id", "score", "T_cam_model", "n_inliers", "fitness", "rmse_m",
+    assert set(d) == {"model", "obj_id", "score", "T_cam_model", "n_inliers", "group_size", "fitness", "rmse_m",
                       "visible_fraction"}
     assert np.asarray(Image.open(scene / "o.png")).shape == (480, 640, 3)
 

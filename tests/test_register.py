@@ -35,12 +35,13 @@ def test_bunny_within_5mm(scan):
 
 
 @pytest.mark.real
-def test_bunny_gc_grouping_within_5mm():
+@pytest.mark.parametrize("grouping", ["gc", "hough"])
+def test_bunny_other_groupings_within_5mm(grouping):
     from pcdet.register import RegisterConfig
 
     d = shared("bunny")
     T_scan_model = np.linalg.inv(_conf(d)["bun045.ply"])
-    r = register(d / "bun_zipper_res3.ply", d / "bun045.ply", RegisterConfig(grouping="gc"))
+    r = register(d / "bun_zipper_res3.ply", d / "bun045.ply", RegisterConfig(grouping=grouping))
     X = load_geometry(d / "bun_zipper_res3.ply").vertices
     err = np.linalg.norm((X @ r.T_target_source[:3, :3].T + r.T_target_source[:3, 3])
                          - (X @ T_scan_model[:3, :3].T + T_scan_model[:3, 3]), axis=1)
