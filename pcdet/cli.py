@@ -215,6 +215,8 @@ def synth(models: Path = typer.Option(MODELS_DIR, help="Folder of mesh models.")
           objects: int = typer.Option(4, help="Library objects per scene."),
           instances: int = typer.Option(1, help="Up to this many copies of each chosen object."),
           distractors: int = typer.Option(0, help="Clutter objects per scene that are not in the library."),
+          sequence: int = typer.Option(0, help="Frames per scene from a camera moving around the table "
+                                       "(0: one image per scene)."),
           seed: int = typer.Option(0, help="Random seed."),
           noise: bool = typer.Option(True, help="Apply the Kinect noise model."),
           units: str = typer.Option("auto", help="Model units: auto, m, cm, mm."),
@@ -225,7 +227,7 @@ def synth(models: Path = typer.Option(MODELS_DIR, help="Folder of mesh models.")
 
     lib = _library(models, PipelineConfig(), units)
     cfg = SynthConfig(scenes=scenes, objects=objects, instances=instances, distractors=distractors, seed=seed,
-                      noise=noise)
+                      noise=noise, sequence=sequence)
     with _progress(detections=False) as prog:
         task = prog.add_task("rendering", total=scenes)
         synthesize(lib, out, cfg, progress=lambda i, n: prog.update(task, completed=i))

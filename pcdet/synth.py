@@ -33,7 +33,8 @@ class SynthConfig:
     instances: copies of one object allowed per scene (up to this many); distractors: clutter objects that are
     not in the library (random boxes, cylinders, cones, spheres and capsules, 3-12 cm; no ground truth);
     distance and elevation of the camera (m, degrees); area: radius (m) of the table disc the objects stand in;
-    noise: apply the sensor model."""
+    noise: apply the sensor model; sequence: frames per scene (0: one image) taken by a camera that moves
+    smoothly around the table, sweeping ``sweep_deg`` of azimuth while its elevation and distance waver."""
 
     scenes: int = 20
     objects: int = 4
@@ -44,12 +45,14 @@ class SynthConfig:
     area: float = 0.2
     noise: bool = True
     seed: int = 0
+    sequence: int = 0
+    sweep_deg: float = 90.0
 
     def __post_init__(self):
         if self.scenes < 1 or self.objects < 1 or self.instances < 1:
             raise ValueError("scenes, objects and instances must be >= 1")
-        if self.distractors < 0:
-            raise ValueError("distractors must be >= 0")
+        if self.distractors < 0 or self.sequence < 0:
+            raise ValueError("distractors and sequence must be >= 0")
 
 
 def kinect_sigma(z: np.ndarray) -> np.ndarray:
@@ -242,6 +245,21 @@ def write_models(lib: ModelLibrary, out: Path) -> None:
     atomic_write_text(out / "models_info.json", json.dumps(info, indent=1, default=float))
 
 
+def camera_path(az: float, el: float, dist: float, target: np.ndarray, cfg: SynthConfig) -> list[np.ndarray]:
+    """``T_world_cam`` of each frame: one view for ``cfg.sequence`` 0, else ``cfg.sequence`` views sweeping
+    ``cfg.sweep_deg`` of azimuth from ``az`` with elevation (+-4 deg) and distance (+-3 cm) wavering."""
+    n = max(cfg.sequence, 1)
+    out = []
+    for k in range(n):
+        u = k / max(n - 1, 1) if cfg.sequence else 0.0
+        a = az + np.radians(cfg.sweep_deg) * u
+        e = el + np.radians(4.0) * np.sin(2 * np.pi * u) if cfg.sequence else el
+        d = dist + 0.03 * np.sin(np.pi * u) if cfg.sequence else dist
+        eye = d * np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+        out.append(_look_at(eye, target))
+    return out
+
+
 def synthesize(lib: ModelLibrary, out, cfg: SynthConfig, camera: Camera = KINECT,
                progress: Callable[[int, int], None] | None = None) -> Path:
     """Write ``cfg.scenes`` scenes as ``out/test/<scene>/`` (one image each) plus ``out/models`` and
@@ -261,19 +279,20 @@ def synthesize(lib: ModelLibrary, out, cfg: SynthConfig, camera: Camera = KINECT
         az = rng.uniform(0, 2 * np.pi)
         el = np.radians(rng.uniform(*cfg.elevation_deg))
         dist = rng.uniform(*cfg.distance)
-        eye = dist * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
         target = np.array([*rng.normal(0, 0.02, 2), 0.03])
-        T_world_cam = _look_at(eye, target)
-        raw, rgb, gt, info = render_scene(lib, placed, T_world_cam, camera, rng, cfg.noise, clutter)
         sdir = out / "test" / f"{s:06d}"
-        write_depth_png(sdir / "depth" / "000000.png", raw)
-        write_png(sdir / "rgb" / "000000.png", rgb)
-        T_cw = np.linalg.inv(T_world_cam)
-        cam = {"0": {"cam_K": camera.K.reshape(-1).tolist(), "depth_scale": 1.0,
-                     "cam_R_w2c": T_cw[:3, :3].reshape(-1).tolist(), "cam_t_w2c": (T_cw[:3, 3] * 1000).tolist()}}
-        atomic_write_text(sdir / "scene_camera.json", json.dumps(cam, indent=1))
-        atomic_write_text(sdir / "scene_gt.json", json.dumps({"0": gt}, indent=1))
-        atomic_write_text(sdir / "scene_gt_info.json", json.dumps({"0": info}, indent=1))
+        cams, gts, infos = {}, {}, {}
+        for k, T_world_cam in enumerate(camera_path(az, el, dist, target, cfg)):
+            raw, rgb, gt, info = render_scene(lib, placed, T_world_cam, camera, rng, cfg.noise, clutter)
+            write_depth_png(sdir / "depth" / f"{k:06d}.png", raw)
+            write_png(sdir / "rgb" / f"{k:06d}.png", rgb)
+            T_cw = np.linalg.inv(T_world_cam)
+            cams[str(k)] = {"cam_K": camera.K.reshape(-1).tolist(), "depth_scale": 1.0,
+                            "cam_R_w2c": T_cw[:3, :3].reshape(-1).tolist(), "cam_t_w2c": (T_cw[:3, 3] * 1000).tolist()}
+            gts[str(k)], infos[str(k)] = gt, info
+        atomic_write_text(sdir / "scene_camera.json", json.dumps(cams, indent=1))
+        atomic_write_text(sdir / "scene_gt.json", json.dumps(gts, indent=1))
+        atomic_write_text(sdir / "scene_gt_info.json", json.dumps(infos, indent=1))
         if progress:
             progress(s, cfg.scenes)
     return out

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -11,12 +10,10 @@ import numpy as np
 from ..camera import Camera
 from ..errors import InputError
 from ..frame import Frame
+from .base import FrameRef
 
 
-@dataclass(frozen=True)
-class BopImage:
-    scene_id: int
-    im_id: int
+BopImage = FrameRef  # one image of a BOP split: (scene_id, im_id)
 
 
 def _read_json(path: Path) -> dict:
@@ -35,11 +32,14 @@ def pose_from_bop(entry: dict) -> np.ndarray:
 
 
 class BopDataset:
-    """Lazy access to the images of one split of a BOP dataset.
+    """Lazy access to the images of one split of a BOP dataset (a ``Recording``).
 
     ``root`` may be the dataset folder (holding ``models/`` and a split folder such as ``test/``) or a split
-    folder itself (holding scene folders).
+    folder itself (holding scene folders). Camera poses come from ``cam_R_w2c`` / ``cam_t_w2c`` in
+    ``scene_camera.json`` when present (``pcdet synth --sequence`` writes them).
     """
+
+    format = "bop"
 
     def __init__(self, root, split: str | None = None):
         root = Path(root)
@@ -65,8 +65,28 @@ class BopDataset:
             ids = sorted(int(k) for k in _read_json(sc))
             self.images += [BopImage(int(sdir.name), i) for i in ids]
 
+    @classmethod
+    def detect(cls, path: Path) -> bool:
+        return _is_split(path) or any(p.is_dir() and _is_split(p) for p in path.iterdir())
+
     def __len__(self) -> int:
         return len(self.images)
+
+    def source(self, img: BopImage) -> str:
+        return str(self.depth_path(img))
+
+    def camera_poses(self) -> dict[BopImage, np.ndarray] | None:
+        """``T_world_cam`` per image from ``cam_R_w2c`` / ``cam_t_w2c`` (mm), or None if any image lacks them."""
+        poses = {}
+        for img in self.images:
+            e = self._scene_json(img.scene_id, "scene_camera.json").get(str(img.im_id), {})
+            if "cam_R_w2c" not in e or "cam_t_w2c" not in e:
+                return None
+            T = np.eye(4)
+            T[:3, :3] = np.asarray(e["cam_R_w2c"], float).reshape(3, 3)
+            T[:3, 3] = np.asarray(e["cam_t_w2c"], float) / 1000.0
+            poses[img] = np.linalg.inv(T)
+        return poses
 
     def __iter__(self):
         return iter(self.images)
@@ -138,4 +158,4 @@ def _image_size(path: Path) -> tuple[int, int]:
 
 
 def _is_split(p: Path) -> bool:
-    return any((s / "scene_camera.json").is_file() for s in p.iterdir() if s.is_dir())
+    return p.is_dir() and any((s / "scene_camera.json").is_file() for s in p.iterdir() if s.is_dir())

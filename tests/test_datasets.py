@@ -1,0 +1,126 @@
+"""Recording readers: each format read from files written here (or shipped in ../shared/data), the same frames
+and poses coming back, auto-detection, and a clear error for an unknown layout."""
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from pcdet.datasets import READERS, FrameRef, Recording, detect_format, open_recording
+from pcdet.errors import InputError
+from pcdet.io.depth import write_depth_png, write_png
+from pcdet.synth import SynthConfig, synthesize
+
+from .conftest import shared
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory, library):
+    """A 6-frame synthetic recording of one scene (BOP layout)."""
+    out = tmp_path_factory.mktemp("seq")
+    return synthesize(library, out, SynthConfig(scenes=1, objects=3, sequence=6, seed=4))
+
+
+def test_bop_sequence_has_smooth_camera_poses_and_consistent_ground_truth(sequence):
+    rec = open_recording(sequence)
+    assert rec.format == "bop" and isinstance(rec, Recording) and len(rec) == 6
+    poses = rec.camera_poses()
+    refs = list(rec)
+    for a, b in zip(refs, refs[1:]):
+        rel = np.linalg.inv(poses[a]) @ poses[b]
+        assert 0.002 < np.linalg.norm(rel[:3, 3]) < 0.2  # the camera moves, smoothly (90 deg over 6 frames)
+        assert np.degrees(Rotation.from_matrix(rel[:3, :3]).magnitude()) < 25
+    # each object stays put in the world: T_world_cam @ T_cam_obj is the same in every frame (1e-6 m)
+    first = [poses[refs[0]] @ g["T_cam_model"] for g in rec.gt(refs[0])]
+    for r in refs[1:]:
+        for T0, g in zip(first, rec.gt(r)):
+            assert np.allclose(poses[r] @ g["T_cam_model"], T0, atol=1e-6)
+
+
+def _write_tum(root, rec):
+    """``rec``'s frames as a TUM recording: depth in 1/5000 m, stamps 1/30 s apart, rgb stamps 5 ms later, and
+    groundtruth.txt with the camera poses as quaternions."""
+    (root / "depth").mkdir(parents=True)
+    (root / "rgb").mkdir()
+    poses = rec.camera_poses()
+    dl, rl, gl = ["# depth"], ["# rgb"], ["# timestamp tx ty tz qx qy qz qw"]
+    for k, ref in enumerate(rec):
+        f = rec.frame(ref)
+        t = 1000.0 + k / 30
+        write_depth_png(root / "depth" / f"{t:.6f}.png", np.rint(f.depth * 5000).astype(np.uint16))
+        write_png(root / "rgb" / f"{t + 0.005:.6f}.png", f.rgb)
+        dl.append(f"{t:.6f} depth/{t:.6f}.png")
+        rl.append(f"{t + 0.005:.6f} rgb/{t + 0.005:.6f}.png")
+        T = poses[ref]
+        q = Rotation.from_matrix(T[:3, :3]).as_quat()
+        gl.append(f"{t + 0.001:.6f} " + " ".join(f"{v:.9f}" for v in [*T[:3, 3], *q]))
+    (root / "depth.txt").write_text("\n".join(dl) + "\n")
+    (root / "rgb.txt").write_text("\n".join(rl) + "\n")
+    (root / "groundtruth.txt").write_text("\n".join(gl) + "\n")
+    cam = rec.frame(rec.images[0]).camera
+    (root / "camera.json").write_text(json.dumps({**cam.to_dict(), "depth_scale": 0.2}))
+
+
+def test_tum_reader_gives_back_depth_rgb_and_poses(tmp_path, sequence):
+    bop = open_recording(sequence)
+    _write_tum(tmp_path / "tum", bop)
+    rec = open_recording(tmp_path / "tum")
+    assert rec.format == "tum" and len(rec) == 6
+    assert rec.images[1].timestamp == pytest.approx(1000 + 1 / 30)
+    gt = rec.camera_poses()
+    for ref, bref in zip(rec, bop):
+        f, b = rec.frame(ref), bop.frame(bref)
+        assert np.abs(f.depth - b.depth).max() <= 1e-4 + 1e-7  # 1 mm PNG re-quantised at 0.2 mm
+        assert np.array_equal(f.rgb, b.rgb)
+        assert np.allclose(gt[ref], bop.camera_poses()[bref], atol=1e-6)
+
+
+def test_tum_without_camera_file_uses_the_documented_default(tmp_path, sequence):
+    _write_tum(tmp_path / "tum", open_recording(sequence))
+    (tmp_path / "tum" / "camera.json").unlink()
+    rec = open_recording(tmp_path / "tum")
+    assert (rec.camera.fx, rec.camera.cx, rec.camera.depth_scale) == (525.0, 319.5, 1 / 5000)
+
+
+def test_folder_and_cloud_readers(tmp_path, sequence):
+    bop = open_recording(sequence)
+    root = tmp_path / "plain"
+    (root / "depth").mkdir(parents=True)
+    clouds = tmp_path / "clouds"
+    clouds.mkdir()
+    for ref in list(bop)[:3]:
+        f = bop.frame(ref)
+        write_depth_png(root / "depth" / f"{ref.im_id:04d}.png", np.rint(f.depth * 1000).astype(np.uint16))
+        pts, _ = f.points()
+        np.savetxt(clouds / f"{ref.im_id:04d}.xyz", pts[::7], fmt="%.6f")
+    (root / "camera.json").write_text(json.dumps(f.camera.to_dict() | {"depth_scale": 1.0}))
+    rec = open_recording(root)
+    assert rec.format == "folder" and len(rec) == 3 and rec.frame(rec.images[0]).rgb is None
+    assert np.abs(rec.frame(rec.images[2]).depth - f.depth).max() < 1e-6
+    crec = open_recording(clouds)
+    assert crec.format == "clouds" and len(crec) == 3
+    assert len(crec.frame(crec.images[0]).points()[0]) > 1000
+
+
+def test_redwood_layout_of_the_open3d_sample(tmp_path):
+    d = shared("open3d_rgbd")
+    rec = open_recording(d)
+    assert rec.format == "redwood" and len(rec) == 5
+    f = rec.frame(rec.images[0])
+    assert f.rgb is not None and f.camera.fx == 525.0 and f.camera.cx == 319.5
+    poses = rec.camera_poses()
+    assert len(poses) == 5 and all(np.allclose(T[3], [0, 0, 0, 1]) for T in poses.values())
+
+
+def test_unknown_layout_names_the_known_ones(tmp_path):
+    (tmp_path / "notes.txt").write_text("hello")
+    with pytest.raises(InputError) as e:
+        detect_format(tmp_path)
+    assert str(tmp_path) in str(e.value) and all(name in str(e.value) for name in READERS)
+    with pytest.raises(FileNotFoundError):
+        open_recording(tmp_path / "missing")
+
+
+def test_frame_refs_sort_by_scene_then_image():
+    assert sorted([FrameRef(2, 0), FrameRef(1, 5), FrameRef(1, 2)]) == [FrameRef(1, 2), FrameRef(1, 5),
+                                                                         FrameRef(2, 0)]
