@@ -12,8 +12,9 @@ import numpy as np
 import typer
 from rich.console import Console
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
+from rich.text import Text
 
 from . import __version__
 from .errors import InputError
@@ -125,52 +126,72 @@ def _print_detections(res):
 
 @app.command()
 @_guard
-def run(dataset: Path = typer.Argument(..., help="BOP dataset folder (with models/ and a split) or split folder."),
-        models: Optional[Path] = typer.Option(None, help="Model folder (default: DATASET/models)."),
+def run(recording: Path = typer.Argument(..., help="Recording or dataset folder: BOP, TUM RGB-D, Redwood log "
+                                         "layout, depth/ + camera.json, or a folder of clouds."),
+        models: Optional[Path] = typer.Option(None, help="Model folder (default: the dataset's models/)."),
         out: Path = typer.Option(..., help="Output folder: results.csv, frames/*.json, config.toml."),
+        format: str = typer.Option("auto", help="Reader: auto, bop, tum, redwood, folder, clouds."),
         targets: Optional[str] = typer.Option(None, help="'gt': localise the objects listed in scene_gt.json."),
         pipeline: Optional[str] = typer.Option(None, help="Preset name or TOML file."),
         grouping: Optional[str] = typer.Option(None, help="Grouping method: ransac, gc or hough."),
         units: str = typer.Option("auto", help="Model units: auto, m, cm, mm (BOP models/: mm)."),
         seed: Optional[int] = typer.Option(None, help="Random seed (overrides the pipeline's)."),
+        resume: bool = typer.Option(False, help="Keep the frames already written to OUT; detect the rest."),
+        workers: int = typer.Option(1, help="Processes to spread frames over."),
         times: bool = typer.Option(False, help="Write measured times into results.csv (default -1, so that "
                                    "reruns are byte-identical)."),
         ):
-    """Detect objects in every image of a BOP dataset."""
-    from .datasets.bop import BopDataset
-    from .runner import run_dataset
+    """Detect objects in every frame of a recording or dataset."""
+    from .datasets import open_recording
+    from .runner import describe, run_recording
 
     if targets not in (None, "gt"):
         _fail(f"--targets takes 'gt', got {targets!r}")
+    if workers < 1:
+        _fail(f"--workers must be >= 1, got {workers}")
     cfg = _pipeline(pipeline, seed, grouping)
-    ds = BopDataset(dataset)
-    if len(ds) == 0:
-        _fail(f"{dataset}: no images")
-    models = models or ds.models_dir
+    rec = open_recording(recording, format)
+    if len(rec) == 0:
+        _fail(f"{recording}: no frames")
+    if targets == "gt" and rec.targets(rec.images[0]) is None:
+        _fail(f"{recording}: --targets gt needs per-frame labels (a BOP scene_gt.json); this is a {rec.format} "
+              "recording")
+    models = models or rec.models_dir
     if models is None:
-        _fail(f"{dataset}: no models/ folder; pass --models")
+        _fail(f"{recording}: no models/ folder; pass --models")
     lib = _library(models, cfg, units)
-    with _progress() as prog:
-        task = prog.add_task("detecting", total=len(ds), dets=0)
+    with _progress(rate=True) as prog:
+        task = prog.add_task("detecting", total=len(rec), dets=0)
         count = {"d": 0}
 
-        def on_image(img, res, err):
+        def on_image(ref, res, err):
             count["d"] += len(res.detections) if res else 0
             if err:
-                prog.console.print(f"[yellow]skipped[/] scene {img.scene_id} image {img.im_id}: {escape(err)}",
-                                   highlight=False, soft_wrap=True)
+                prog.console.print(f"[yellow]skipped[/] {describe(ref)}: {escape(err)}", highlight=False,
+                                   soft_wrap=True)
             prog.update(task, advance=1, dets=count["d"])
 
-        s = run_dataset(ds, lib, cfg, out, targets == "gt", __version__, times, on_image)
+        s = run_recording(rec, lib, cfg, out, targets == "gt", __version__, times, on_image, resume, workers)
+        prog.update(task, completed=len(rec))
     med = float(np.median(s.seconds)) if s.seconds else 0.0
-    console.print(f"{s.images} image(s), {s.detections} detection(s), median {med:.2f} s/image, "
-                  f"{len(s.failed)} failed -> {out / 'results.csv'}")
+    kept = f", {s.resumed} kept from before" if s.resumed else ""
+    console.print(f"{rec.format}: {s.images} frame(s) detected{kept}, {s.detections} detection(s), median "
+                  f"{med:.2f} s/frame, {len(s.failed)} failed -> {out / 'results.csv'}")
     if s.failed:
-        raise typer.Exit(2 if s.images == 0 else 0)
+        raise typer.Exit(2 if s.images + s.resumed == 0 else 0)
 
 
-def _progress(detections: bool = True):
+class _RateColumn(ProgressColumn):
+    """Frames per second over the last few frames."""
+
+    def render(self, task) -> Text:
+        return Text(f"{task.speed:.2f} frames/s" if task.speed else "-- frames/s")
+
+
+def _progress(detections: bool = True, rate: bool = False):
     cols = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn()]
+    if rate:
+        cols.append(_RateColumn())
     if detections:
         cols.append(TextColumn("{task.fields[dets]} detections"))
     return Progress(*cols, TimeElapsedColumn(), console=console)
@@ -289,7 +310,7 @@ def demo(out: Path = typer.Option(Path("demo_out"), help="Output folder."),
     from .evaluate import evaluate
     from .io.depth import write_png
     from .io.results import read_bop_csv
-    from .runner import run_dataset
+    from .runner import run_recording
     from .synth import SynthConfig, synthesize
     from .viz import overlay as draw
 
@@ -310,7 +331,7 @@ def demo(out: Path = typer.Option(Path("demo_out"), help="Output folder."),
             results.setdefault("first", (img, res))  # drawn below, without detecting again
             prog.update(task, advance=1, dets=count["d"])
 
-        s = run_dataset(ds, lib, cfg, out / "run", version=__version__, on_image=on_image)
+        s = run_recording(ds, lib, cfg, out / "run", version=__version__, on_image=on_image)
     ev = evaluate(ds, read_bop_csv(out / "run" / "results.csv"), lib)
     _print_eval(ev, lib)
     img, res = results["first"]

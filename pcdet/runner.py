@@ -1,20 +1,27 @@
-"""Run the detector over every image of a BOP dataset, writing results as it goes.
+"""Run the detector over every frame of a recording, writing results as it goes.
 
-Each image's detections JSON is written atomically as soon as it is done; ``results.csv`` (BOP format) and
-``config.toml`` (the resolved pipeline) are written at the end. A bad image is reported and skipped.
+Each frame's detections JSON (``frames/<scene>_<image>.json``) is written atomically as soon as the frame is
+done, and ``results.csv`` (BOP format) is always rebuilt from those files, in recording order. So a run that
+was killed and then resumed (``resume=True`` skips frames whose JSON exists) writes the same ``results.csv``
+as one that never stopped. A bad frame is reported and skipped, and ``failures.json`` lists it.
+
+Frames are independent, so they can be spread over worker processes (``workers``); each process builds its own
+``Detector`` and the output does not depend on how many there are.
 """
 from __future__ import annotations
 
 import json
+import os
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 from .config import PipelineConfig, dump_toml
-from .datasets.bop import BopDataset, BopImage
+from .datasets.base import FrameRef
 from .detector import DetectionResult, Detector
 from .io.atomic import atomic_write_text
-from .io.results import bop_rows, write_bop_csv, write_detections_json
+from .io.results import write_bop_csv, write_detections_json
 from .model import ModelLibrary
 
 
@@ -22,47 +29,113 @@ from .model import ModelLibrary
 class RunSummary:
     images: int = 0
     detections: int = 0
+    resumed: int = 0
     failed: list[tuple[str, str]] = field(default_factory=list)
     seconds: list[float] = field(default_factory=list)
 
 
-def run_dataset(ds: BopDataset, library: ModelLibrary, cfg: PipelineConfig, out, targets: bool = False,
-                version: str = "", record_time: bool = False,
-                on_image: Callable[[BopImage, DetectionResult | None, str | None], None] | None = None
-                ) -> RunSummary:
-    """Detect in every image of ``ds``; ``targets`` uses scene_gt.json's object ids and counts (BOP
-    localisation). ``on_image(img, result, error)`` is called after each image (result None on error).
+def frame_json_path(out: Path, ref: FrameRef) -> Path:
+    return out / "frames" / f"{ref.scene_id:06d}_{ref.im_id:06d}.json"
+
+
+def describe(ref: FrameRef) -> str:
+    return f"scene {ref.scene_id} image {ref.im_id}"
+
+
+# one detector per worker process, built by the pool's initializer
+_WORKER: dict = {}
+
+
+def _init_worker(library: ModelLibrary, cfg: PipelineConfig, threads: int) -> None:
+    _WORKER["det"] = Detector(library, cfg, workers=threads)
+
+
+def _detect_one(rec, ref: FrameRef, targets: bool, det: Detector | None = None
+                ) -> tuple[FrameRef, DetectionResult | None, str | None]:
+    det = det or _WORKER["det"]
+    try:
+        frame = rec.frame(ref)
+        tg = rec.targets(ref) if targets else None
+        return ref, det.detect(frame, tg), None
+    except (ValueError, OSError) as e:  # InputError, FileNotFoundError, corrupt images: skip this frame
+        return ref, None, str(e)
+
+
+def _detect_all(rec, refs: list[FrameRef], library: ModelLibrary, cfg: PipelineConfig, targets: bool,
+                workers: int) -> Iterator[tuple[FrameRef, DetectionResult | None, str | None]]:
+    """Results in the order of ``refs``, from this process or from a pool of ``workers`` processes."""
+    if workers <= 1 or len(refs) < 2:
+        det = Detector(library, cfg)
+        for ref in refs:
+            yield _detect_one(rec, ref, targets, det)
+        return
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    with ProcessPoolExecutor(workers, initargs=(library, cfg, threads), initializer=_init_worker) as pool:
+        yield from pool.map(_detect_one, [rec] * len(refs), refs, [targets] * len(refs))
+
+
+def run_recording(rec, library: ModelLibrary, cfg: PipelineConfig, out, targets: bool = False,
+                  version: str = "", record_time: bool = False,
+                  on_image: Callable[[FrameRef, DetectionResult | None, str | None], None] | None = None,
+                  resume: bool = False, workers: int = 1) -> RunSummary:
+    """Detect in every frame of ``rec`` (any reader of ``pcdet.datasets``).
+
+    targets : localise the objects the recording labels per frame (BOP scene_gt.json); needs labels.
+    on_image(ref, result, error) : called after each frame (result None on error; not called for frames
+        skipped by ``resume``).
+    resume : keep frames whose JSON already exists in ``out`` and detect only the others.
+    workers : processes to spread frames over (1: this process).
 
     The ``time`` column of results.csv is -1 (BOP's "not measured") unless ``record_time``, so that the same
-    input, config and seed give a byte-identical file; per-stage times are always in the per-image JSON."""
+    input, config and seed give a byte-identical file; per-stage times are always in the per-frame JSON."""
     out = Path(out)
     (out / "frames").mkdir(parents=True, exist_ok=True)
-    det = Detector(library, cfg)
-    rows: list[list[str]] = []
     summary = RunSummary()
+    todo = list(rec)
+    if resume:
+        todo = [r for r in todo if not _readable_json(frame_json_path(out, r))]
+        summary.resumed = len(rec) - len(todo)
     pipeline = cfg.to_dict()
-    for img in ds:
-        try:
-            frame = ds.frame(img)
-            tg = ds.targets(img) if targets else None
-            result = det.detect(frame, tg)
-        except (ValueError, OSError) as e:  # InputError, FileNotFoundError, corrupt images: skip this one
-            summary.failed.append((f"scene {img.scene_id} image {img.im_id}", str(e)))
-            if on_image:
-                on_image(img, None, str(e))
-            continue
-        t = sum(result.timing_s.values())
-        summary.images += 1
-        summary.detections += len(result.detections)
-        summary.seconds.append(t)
-        rows += bop_rows(img.scene_id, img.im_id, result.detections, t if record_time else -1.0)
-        info = {"scene_id": img.scene_id, "im_id": img.im_id, "source": str(ds.depth_path(img))}
-        write_detections_json(out / "frames" / f"{img.scene_id:06d}_{img.im_id:06d}.json", info, result,
-                              pipeline, version)
+    for ref, result, err in _detect_all(rec, todo, library, cfg, targets, workers):
+        if err is not None:
+            summary.failed.append((describe(ref), err))
+        else:
+            summary.images += 1
+            summary.detections += len(result.detections)
+            summary.seconds.append(sum(result.timing_s.values()))
+            info = {"scene_id": ref.scene_id, "im_id": ref.im_id, "source": rec.source(ref)}
+            if ref.timestamp is not None:
+                info["timestamp"] = ref.timestamp
+            write_detections_json(frame_json_path(out, ref), info, result, pipeline, version)
         if on_image:
-            on_image(img, result, None)
-    write_bop_csv(out / "results.csv", rows)
+            on_image(ref, result, err)
+    write_bop_csv(out / "results.csv", results_rows(out, list(rec), record_time))
     atomic_write_text(out / "config.toml", dump_toml(cfg))
     atomic_write_text(out / "failures.json", json.dumps([{"image": a, "error": b} for a, b in summary.failed],
                                                         indent=1))
     return summary
+
+
+def _readable_json(path: Path) -> bool:
+    try:
+        json.loads(path.read_text())
+        return True
+    except (OSError, ValueError):
+        return False
+
+
+def results_rows(out: Path, refs: list[FrameRef], record_time: bool) -> list[list[str]]:
+    """BOP CSV rows from the per-frame JSON files in ``out/frames`` (frames without one are left out)."""
+    rows = []
+    for ref in refs:
+        p = frame_json_path(out, ref)
+        if not p.is_file():
+            continue
+        doc = json.loads(p.read_text())
+        t = sum(doc["timing_s"].values()) if record_time else -1.0
+        for d in doc["detections"]:
+            R = " ".join(f"{v:.9f}" for row in d["T_cam_model"][:3] for v in row[:3])
+            tr = " ".join(f"{row[3] * 1000.0:.6f}" for row in d["T_cam_model"][:3])
+            rows.append([str(ref.scene_id), str(ref.im_id), str(d["obj_id"]), f"{d['score']:.6f}", R, tr,
+                         f"{t:.3f}"])
+    return rows

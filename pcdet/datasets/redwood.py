@@ -10,7 +10,6 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import InputError
-from .base import FrameRef
 from .folder import FolderRecording
 
 LOG_NAMES = ("trajectory.log", "odometry.log")

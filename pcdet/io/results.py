@@ -14,17 +14,6 @@ from .atomic import atomic_write_text
 BOP_HEADER = ["scene_id", "im_id", "obj_id", "score", "R", "t", "time"]
 
 
-def bop_rows(scene_id: int, im_id: int, detections, time_s: float) -> list[list[str]]:
-    """BOP CSV rows for one image: R row-major, t in mm, time in seconds (shared by the image's rows)."""
-    rows = []
-    for d in detections:
-        T = d.T_cam_model
-        R = " ".join(f"{v:.9f}" for v in T[:3, :3].reshape(-1))
-        t = " ".join(f"{v:.6f}" for v in T[:3, 3] * 1000.0)
-        rows.append([str(scene_id), str(im_id), str(d.obj_id), f"{d.score:.6f}", R, t, f"{time_s:.3f}"])
-    return rows
-
-
 def write_bop_csv(path, rows: list[list[str]]) -> Path:
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
