@@ -1,0 +1,101 @@
+"""Camera odometry for RGB-D recordings: KISS-ICP (Vizzo et al. 2023) configured for depth-camera range, or
+frame-to-frame point-to-plane ICP.
+
+KISS-ICP is made for LiDAR: here it gets metres-scale settings (``OdometryConfig``), no deskewing (a depth image
+is taken at one instant) and one thread (its threaded reductions would make the result depend on the thread
+count).
+
+Measured on table-top recordings (``pcdet synth --sequence 60``), KISS-ICP alone drifts: the table is most of
+every view, and point-to-point scan-to-map ICP on a voxel map slides along it (60-frame ATE 113 mm at the
+default 2 cm voxel, 60 mm at 1 cm, against 24 mm for repeating the first true motion). Frame-to-frame
+point-to-plane ICP holds (20 mm). The default, ``method = "kiss+icp"``, takes KISS-ICP's pose as the guess,
+corrects it by frame-to-frame point-to-plane ICP, and hands the corrected pose back to KISS-ICP's map (18 mm).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable, Iterator
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .cloud import estimate_normals, voxel_downsample
+from .config import RefineConfig
+from .frame import Frame
+from .refine import icp
+
+
+@dataclass(frozen=True)
+class OdometryConfig:
+    """method: "kiss", "icp" (frame to frame, constant-velocity guess) or "kiss+icp" (KISS-ICP's pose refined
+    frame to frame); voxel: KISS-ICP's map voxel (m); min_range / max_range: points used (m); initial_threshold
+    and min_motion: KISS-ICP's adaptive threshold start (m) and the motion it ignores (m); icp_voxel:
+    frame-to-frame ICP sampling (m)."""
+
+    method: str = "kiss+icp"
+    voxel: float = 0.02
+    min_range: float = 0.1
+    max_range: float = 4.0
+    initial_threshold: float = 0.05
+    min_motion: float = 0.005
+    icp_voxel: float = 0.01
+
+    def __post_init__(self):
+        if self.method not in ("kiss", "icp", "kiss+icp"):
+            raise ValueError(f"OdometryConfig.method must be 'kiss', 'icp' or 'kiss+icp', got {self.method!r}")
+
+
+def _kiss(cfg: OdometryConfig):
+    from kiss_icp.config import KISSConfig
+    from kiss_icp.kiss_icp import KissICP
+
+    kc = KISSConfig()
+    kc.data.deskew = False
+    kc.data.max_range = cfg.max_range
+    kc.data.min_range = cfg.min_range
+    kc.mapping.voxel_size = cfg.voxel
+    kc.adaptive_threshold.initial_threshold = cfg.initial_threshold
+    kc.adaptive_threshold.min_motion_th = cfg.min_motion
+    kc.registration.max_num_threads = 1
+    return KissICP(kc)
+
+
+class _FrameICP:
+    """Frame-to-frame point-to-plane ICP: ``step(points)`` returns T_prev_cur."""
+
+    def __init__(self, cfg: OdometryConfig):
+        self.cfg = cfg
+        self.prev = None
+        self.rc = RefineConfig(iterations=40, max_distance=4 * cfg.icp_voxel, kernel=2 * cfg.icp_voxel)
+
+    def step(self, pts: np.ndarray, guess: np.ndarray) -> np.ndarray:
+        p, _, _ = voxel_downsample(pts, self.cfg.icp_voxel, representatives=False)
+        n = estimate_normals(p, 3 * self.cfg.icp_voxel, 30)
+        prev, self.prev = self.prev, (p, n, cKDTree(p))
+        if prev is None:
+            return np.eye(4)
+        return icp(p, prev[0], prev[1], guess, self.rc, target_tree=prev[2]).T_target_source
+
+
+def odometry(frames: Iterable[Frame], cfg: OdometryConfig | None = None) -> Iterator[np.ndarray]:
+    """``T_first_cam`` (4, 4) of each frame in turn (the first is the identity), in the first camera's frame."""
+    cfg = cfg or OdometryConfig()
+    kiss = _kiss(cfg) if cfg.method in ("kiss", "kiss+icp") else None
+    f2f = _FrameICP(cfg) if cfg.method in ("icp", "kiss+icp") else None
+    T = np.eye(4)
+    last_step = np.eye(4)
+    for frame in frames:
+        pts, _ = frame.points()
+        z = pts[:, 2]
+        pts = pts[(z >= cfg.min_range) & (z <= cfg.max_range)]
+        if kiss is not None:
+            kiss.register_frame(np.ascontiguousarray(pts), np.zeros(len(pts)))
+            T_new = kiss.last_pose.copy()
+            if f2f is not None:
+                T_new = T @ f2f.step(pts, np.linalg.inv(T) @ T_new)
+                kiss.last_pose = T_new.copy()  # KISS-ICP predicts the next pose from the corrected one
+        else:
+            T_new = T @ f2f.step(pts, last_step)
+        last_step = np.linalg.inv(T) @ T_new
+        T = T_new
+        yield T.copy()
