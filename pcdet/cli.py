@@ -137,6 +137,11 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
         units: str = typer.Option("auto", help="Model units: auto, m, cm, mm (BOP models/: mm)."),
         seed: Optional[int] = typer.Option(None, help="Random seed (overrides the pipeline's)."),
         resume: bool = typer.Option(False, help="Keep the frames already written to OUT; detect the rest."),
+        track: bool = typer.Option(False, help="Track objects through the recording (full detection on the "
+                                   "first frame, every --redetect-every frames and after a loss; ICP from the "
+                                   "predicted pose between) and write tracks.json."),
+        redetect_every: int = typer.Option(15, help="With --track: full detection every N frames (0: only "
+                                           "when a track is lost)."),
         workers: int = typer.Option(1, help="Processes to spread frames over."),
         times: bool = typer.Option(False, help="Write measured times into results.csv (default -1, so that "
                                    "reruns are byte-identical)."),
@@ -160,6 +165,11 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
     if models is None:
         _fail(f"{recording}: no models/ folder; pass --models")
     lib = _library(models, cfg, units)
+    if track:
+        if resume or workers > 1 or targets:
+            _fail("--track runs one recording in order in one process: it takes no --resume, --workers or "
+                  "--targets")
+        return _run_tracking(rec, lib, cfg, out, redetect_every)
     with _progress(rate=True) as prog:
         task = prog.add_task("detecting", total=len(rec), dets=0)
         count = {"d": 0}
@@ -179,6 +189,26 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
                   f"{med:.2f} s/frame, {len(s.failed)} failed -> {out / 'results.csv'}")
     if s.failed:
         raise typer.Exit(2 if s.images + s.resumed == 0 else 0)
+
+
+def _run_tracking(rec, lib, cfg, out: Path, redetect_every: int):
+    from .detector import Detector
+    from .io.atomic import atomic_write_text
+    from .tracking import Tracker, TrackingConfig
+
+    tracker = Tracker(Detector(lib, cfg), TrackingConfig(redetect_every=redetect_every))
+    with _progress(rate=True, detections=False) as prog:
+        task = prog.add_task("tracking", total=len(rec))
+        res = tracker.run(rec, on_frame=lambda i, mode, s: prog.update(task, advance=1))
+    out.mkdir(parents=True, exist_ok=True)
+    doc = {"pcdet_version": __version__, "recording": str(rec.root), "format": rec.format,
+           "frames": [{"scene_id": r.scene_id, "im_id": r.im_id} for r in rec], **res.to_dict(),
+           "pipeline": cfg.to_dict()}
+    atomic_write_text(out / "tracks.json", json.dumps(doc, indent=1))
+    tr = [s for s, m in zip(res.seconds, res.modes) if m == "track"]
+    fps = f", tracking frames {1 / np.median(tr):.1f} frames/s" if tr else ""
+    console.print(f"{len(rec)} frame(s), {res.modes.count('detect')} full detection(s), {len(res.tracks)} "
+                  f"track(s){fps} -> {out / 'tracks.json'}")
 
 
 class _RateColumn(ProgressColumn):

@@ -31,7 +31,8 @@ class OdometryConfig:
     """method: "kiss", "icp" (frame to frame, constant-velocity guess) or "kiss+icp" (KISS-ICP's pose refined
     frame to frame); voxel: KISS-ICP's map voxel (m); min_range / max_range: points used (m); initial_threshold
     and min_motion: KISS-ICP's adaptive threshold start (m) and the motion it ignores (m); icp_voxel:
-    frame-to-frame ICP sampling (m)."""
+    frame-to-frame ICP sampling (m); pixel_stride: every n-th pixel row and column is used (2 keeps a point
+    every 3.6 mm at 1 m, well under the 1 cm ICP grid, and quarters the work)."""
 
     method: str = "kiss+icp"
     voxel: float = 0.02
@@ -40,6 +41,7 @@ class OdometryConfig:
     initial_threshold: float = 0.05
     min_motion: float = 0.005
     icp_voxel: float = 0.01
+    pixel_stride: int = 2
 
     def __post_init__(self):
         if self.method not in ("kiss", "icp", "kiss+icp"):
@@ -93,9 +95,13 @@ class Odometry:
 
     def step(self, frame: Frame) -> np.ndarray:
         cfg = self.cfg
-        pts, _ = frame.points()
+        pts, pix = frame.points()
         z = pts[:, 2]
-        pts = pts[(z >= cfg.min_range) & (z <= cfg.max_range)]
+        keep = (z >= cfg.min_range) & (z <= cfg.max_range)
+        if cfg.pixel_stride > 1:
+            v, u = np.divmod(pix, frame.camera.width)
+            keep &= (v % cfg.pixel_stride == 0) & (u % cfg.pixel_stride == 0)
+        pts = pts[keep]
         T = self.T
         if self.kiss is not None:
             self.kiss.register_frame(np.ascontiguousarray(pts), np.zeros(len(pts)))
