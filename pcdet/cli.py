@@ -142,7 +142,10 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
                                    "predicted pose between) and write tracks.json."),
         redetect_every: int = typer.Option(15, help="With --track: full detection every N frames (0: only "
                                            "when a track is lost)."),
-        workers: int = typer.Option(1, help="Processes to spread frames over."),
+        workers: int = typer.Option(1, help="Processes to spread frames (with --track: scenes) over; with "
+                                    "--executor ray, the CPUs of a local Ray instance."),
+        executor: str = typer.Option("local", help="local (processes here) or ray (needs pcdet[ray])."),
+        ray_address: Optional[str] = typer.Option(None, help="Ray cluster to use (default: start a local one)."),
         times: bool = typer.Option(False, help="Write measured times into results.csv (default -1, so that "
                                    "reruns are byte-identical)."),
         ):
@@ -165,11 +168,12 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
     if models is None:
         _fail(f"{recording}: no models/ folder; pass --models")
     lib = _library(models, cfg, units)
+    if executor not in ("local", "ray"):
+        _fail(f"--executor takes local or ray, got {executor!r}")
     if track:
-        if resume or workers > 1 or targets:
-            _fail("--track runs one recording in order in one process: it takes no --resume, --workers or "
-                  "--targets")
-        return _run_tracking(rec, lib, cfg, out, redetect_every)
+        if resume or targets:
+            _fail("--track follows each scene from its first frame: it takes no --resume or --targets")
+        return _run_tracking(rec, lib, cfg, out, redetect_every, workers, executor, ray_address)
     with _progress(rate=True) as prog:
         task = prog.add_task("detecting", total=len(rec), dets=0)
         count = {"d": 0}
@@ -181,7 +185,8 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
                                    soft_wrap=True)
             prog.update(task, advance=1, dets=count["d"])
 
-        s = run_recording(rec, lib, cfg, out, targets == "gt", __version__, times, on_image, resume, workers)
+        s = run_recording(rec, lib, cfg, out, targets == "gt", __version__, times, on_image, resume, workers,
+                          executor, ray_address)
         prog.update(task, completed=len(rec))
     med = float(np.median(s.seconds)) if s.seconds else 0.0
     kept = f", {s.resumed} kept from before" if s.resumed else ""
@@ -191,24 +196,30 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
         raise typer.Exit(2 if s.images + s.resumed == 0 else 0)
 
 
-def _run_tracking(rec, lib, cfg, out: Path, redetect_every: int):
-    from .detector import Detector
+def _run_tracking(rec, lib, cfg, out: Path, redetect_every: int, workers: int, executor: str,
+                  ray_address: str | None):
     from .io.atomic import atomic_write_text
-    from .tracking import Tracker, TrackingConfig
+    from .tracking import TrackingConfig, track_recording
 
-    tracker = Tracker(Detector(lib, cfg), TrackingConfig(redetect_every=redetect_every))
+    tcfg = TrackingConfig(redetect_every=redetect_every)
     with _progress(rate=True, detections=False) as prog:
         task = prog.add_task("tracking", total=len(rec))
-        res = tracker.run(rec, on_frame=lambda i, mode, s: prog.update(task, advance=1))
+        res = track_recording(rec, lib, cfg, tcfg, workers, executor, ray_address,
+                              on_frame=lambda i, mode, s: prog.update(task, advance=1))
+        prog.update(task, completed=len(rec))
     out.mkdir(parents=True, exist_ok=True)
-    doc = {"pcdet_version": __version__, "recording": str(rec.root), "format": rec.format,
-           "frames": [{"scene_id": r.scene_id, "im_id": r.im_id} for r in rec], **res.to_dict(),
+    scenes = []
+    for sid, r in res.items():
+        refs = [f for f in rec if f.scene_id == sid]
+        scenes.append({"scene_id": sid, "frames": [f.im_id for f in refs], **r.to_dict()})
+    doc = {"pcdet_version": __version__, "recording": str(rec.root), "format": rec.format, "scenes": scenes,
            "pipeline": cfg.to_dict()}
     atomic_write_text(out / "tracks.json", json.dumps(doc, indent=1))
-    tr = [s for s, m in zip(res.seconds, res.modes) if m == "track"]
+    modes = [m for r in res.values() for m in r.modes]
+    tr = [s for r in res.values() for s, m in zip(r.seconds, r.modes) if m == "track"]
     fps = f", tracking frames {1 / np.median(tr):.1f} frames/s" if tr else ""
-    console.print(f"{len(rec)} frame(s), {res.modes.count('detect')} full detection(s), {len(res.tracks)} "
-                  f"track(s){fps} -> {out / 'tracks.json'}")
+    console.print(f"{len(rec)} frame(s) in {len(res)} scene(s), {modes.count('detect')} full detection(s), "
+                  f"{sum(len(r.tracks) for r in res.values())} track(s){fps} -> {out / 'tracks.json'}")
 
 
 class _RateColumn(ProgressColumn):

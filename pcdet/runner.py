@@ -5,14 +5,13 @@ done, and ``results.csv`` (BOP format) is always rebuilt from those files, in re
 was killed and then resumed (``resume=True`` skips frames whose JSON exists) writes the same ``results.csv``
 as one that never stopped. A bad frame is reported and skipped, and ``failures.json`` lists it.
 
-Frames are independent, so they can be spread over worker processes (``workers``); each process builds its own
-``Detector`` and the output does not depend on how many there are.
+Frames are independent, so they can be spread over worker processes (``workers``) or a Ray cluster
+(``executor="ray"``, see ``executors``); each worker builds its own ``Detector`` and the output does not
+depend on where frames ran.
 """
 from __future__ import annotations
 
 import json
-import os
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
@@ -20,6 +19,7 @@ from typing import Callable, Iterator
 from .config import PipelineConfig, dump_toml
 from .datasets.base import FrameRef
 from .detector import DetectionResult, Detector
+from .executors import map_chunks, split
 from .io.atomic import atomic_write_text
 from .io.results import write_bop_csv, write_detections_json
 from .model import ModelLibrary
@@ -42,17 +42,8 @@ def describe(ref: FrameRef) -> str:
     return f"scene {ref.scene_id} image {ref.im_id}"
 
 
-# one detector per worker process, built by the pool's initializer
-_WORKER: dict = {}
-
-
-def _init_worker(library: ModelLibrary, cfg: PipelineConfig, threads: int) -> None:
-    _WORKER["det"] = Detector(library, cfg, workers=threads)
-
-
-def _detect_one(rec, ref: FrameRef, targets: bool, det: Detector | None = None
+def _detect_one(rec, ref: FrameRef, targets: bool, det: Detector
                 ) -> tuple[FrameRef, DetectionResult | None, str | None]:
-    det = det or _WORKER["det"]
     try:
         frame = rec.frame(ref)
         tg = rec.targets(ref) if targets else None
@@ -61,30 +52,42 @@ def _detect_one(rec, ref: FrameRef, targets: bool, det: Detector | None = None
         return ref, None, str(e)
 
 
+def _detect_chunk(shared, refs: list[FrameRef]) -> list:
+    """One worker's share: a detector of its own (one thread: the workers already fill the cores)."""
+    rec, library, cfg, targets = shared
+    det = Detector(library, cfg, workers=1)
+    return [_detect_one(rec, r, targets, det) for r in refs]
+
+
 def _detect_all(rec, refs: list[FrameRef], library: ModelLibrary, cfg: PipelineConfig, targets: bool,
-                workers: int) -> Iterator[tuple[FrameRef, DetectionResult | None, str | None]]:
-    """Results in the order of ``refs``, from this process or from a pool of ``workers`` processes."""
-    if workers <= 1 or len(refs) < 2:
+                workers: int, executor: str, ray_address: str | None
+                ) -> Iterator[tuple[FrameRef, DetectionResult | None, str | None]]:
+    """Results in the order of ``refs``: here, frame by frame, or in chunks on a pool or on Ray."""
+    if executor == "local" and workers <= 1:
         det = Detector(library, cfg)
         for ref in refs:
             yield _detect_one(rec, ref, targets, det)
         return
-    threads = max(1, (os.cpu_count() or 1) // workers)
-    with ProcessPoolExecutor(workers, initargs=(library, cfg, threads), initializer=_init_worker) as pool:
-        yield from pool.map(_detect_one, [rec] * len(refs), refs, [targets] * len(refs))
+    chunks = split(refs, 4 * max(workers, 1))  # a few chunks per worker evens out slow frames
+    for results in map_chunks(_detect_chunk, (rec, library, cfg, targets), chunks, workers, executor,
+                              ray_address):
+        yield from results
 
 
 def run_recording(rec, library: ModelLibrary, cfg: PipelineConfig, out, targets: bool = False,
                   version: str = "", record_time: bool = False,
                   on_image: Callable[[FrameRef, DetectionResult | None, str | None], None] | None = None,
-                  resume: bool = False, workers: int = 1) -> RunSummary:
+                  resume: bool = False, workers: int = 1, executor: str = "local",
+                  ray_address: str | None = None) -> RunSummary:
     """Detect in every frame of ``rec`` (any reader of ``pcdet.datasets``).
 
     targets : localise the objects the recording labels per frame (BOP scene_gt.json); needs labels.
     on_image(ref, result, error) : called after each frame (result None on error; not called for frames
         skipped by ``resume``).
     resume : keep frames whose JSON already exists in ``out`` and detect only the others.
-    workers : processes to spread frames over (1: this process).
+    workers : processes to spread frames over (1: this process); with Ray, the CPUs of a local instance.
+    executor : "local" (processes on this machine) or "ray" (tasks on the cluster at ``ray_address``, or on a
+        local Ray instance when that is None).
 
     The ``time`` column of results.csv is -1 (BOP's "not measured") unless ``record_time``, so that the same
     input, config and seed give a byte-identical file; per-stage times are always in the per-frame JSON."""
@@ -96,7 +99,7 @@ def run_recording(rec, library: ModelLibrary, cfg: PipelineConfig, out, targets:
         todo = [r for r in todo if not _readable_json(frame_json_path(out, r))]
         summary.resumed = len(rec) - len(todo)
     pipeline = cfg.to_dict()
-    for ref, result, err in _detect_all(rec, todo, library, cfg, targets, workers):
+    for ref, result, err in _detect_all(rec, todo, library, cfg, targets, workers, executor, ray_address):
         if err is not None:
             summary.failed.append((describe(ref), err))
         else:

@@ -201,3 +201,44 @@ class Tracker:
             if on_frame:
                 on_frame(i, mode, secs[-1])
         return TrackingResult(self.tracks, poses, modes, secs)
+
+
+class _Scene:
+    """The frames of one scene of a recording, as a recording of its own (what ``Tracker.run`` reads)."""
+
+    def __init__(self, rec, refs):
+        self.rec, self.images = rec, list(refs)
+
+    def __iter__(self):
+        return iter(self.images)
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def frame(self, ref):
+        return self.rec.frame(ref)
+
+
+def _track_chunk(shared, refs) -> TrackingResult:
+    rec, library, cfg, tcfg = shared
+    return Tracker(Detector(library, cfg, workers=1), tcfg).run(_Scene(rec, refs))
+
+
+def track_recording(rec, library, cfg, tcfg: TrackingConfig | None = None, workers: int = 1,
+                    executor: str = "local", ray_address: str | None = None, on_frame=None
+                    ) -> dict[int, TrackingResult]:
+    """Track every scene of ``rec`` (a BOP dataset may hold several sequences; other readers hold one) on its
+    own, in this process or spread scene by scene over processes or Ray (``executors.map_chunks``).
+    ``on_frame(i, mode, seconds)`` is called per frame when everything runs here."""
+    from .executors import map_chunks
+
+    tcfg = tcfg or TrackingConfig()
+    scenes: dict[int, list] = {}
+    for ref in rec:
+        scenes.setdefault(ref.scene_id, []).append(ref)
+    if executor == "local" and (workers <= 1 or len(scenes) < 2):
+        return {sid: Tracker(Detector(library, cfg), tcfg).run(_Scene(rec, refs), on_frame)
+                for sid, refs in scenes.items()}
+    results = map_chunks(_track_chunk, (rec, library, cfg, tcfg), list(scenes.values()), workers, executor,
+                         ray_address)
+    return dict(zip(scenes, results))

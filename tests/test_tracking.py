@@ -49,5 +49,6 @@ def test_cli_track_writes_tracks_json(recording, tmp_path):
                         "--track", "--redetect-every", "0"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     doc = json.loads((tmp_path / "tracks.json").read_text())
-    assert len(doc["camera_poses"]) == 20 and doc["frame_modes"].count("detect") == 1
-    assert {"id", "model", "obj_id", "T_world_model", "observations"} <= set(doc["tracks"][0])
+    (scene,) = doc["scenes"]
+    assert len(scene["camera_poses"]) == 20 and scene["frame_modes"].count("detect") == 1
+    assert {"id", "model", "obj_id", "T_world_model", "observations"} <= set(scene["tracks"][0])
