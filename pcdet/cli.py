@@ -119,8 +119,8 @@ def _print_detections(res):
         t.add_column(c, justify="right" if c != "model" else "left")
     for d in res.detections:
         x, y, z = d.T_cam_model[:3, 3]
-        t.add_row(d.model, str(d.obj_id), f"{d.score:.3f}", f"{x:.3f}", f"{y:.3f}", f"{z:.3f}", str(d.group_size), str(d.n_inliers),
-                  f"{d.visible_fraction:.2f}")
+        t.add_row(d.model, str(d.obj_id), f"{d.score:.3f}", f"{x:.3f}", f"{y:.3f}", f"{z:.3f}", str(d.group_size),
+                  str(d.n_inliers), f"{d.visible_fraction:.2f}")
     out_console.print(t)
 
 

@@ -88,12 +88,13 @@ class Detector:
         self.workers = max(1, workers or os.cpu_count() or 1)
         self._pool = ThreadPoolExecutor(self.workers) if self.workers > 1 else None
         self._trees = [cKDTree(m.features) for m in library]
-        # ICP needs far fewer points than verification: a grid of twice the scene voxel keeps the shape
         self._reference = [(m.points.max(0) + m.points.min(0)) / 2 for m in library]  # Hough vote target
-        self._icp_pts = []
+        # per model: (points (P, 3), normals (P, 3)) on a grid of twice the scene voxel, what ICP moves (far
+        # fewer than verification needs; the shape is kept)
+        self.icp_points: list[tuple[np.ndarray, np.ndarray]] = []
         for m in library:
             p, n, _ = voxel_downsample(m.points, 2 * self.config.preprocess.voxel, m.normals, representatives=False)
-            self._icp_pts.append((p, n))
+            self.icp_points.append((p, n))
 
     def _map(self, fn, items) -> list:
         """``[fn(x) for x in items]``, on the thread pool when there is one; results keep the input order."""
@@ -141,7 +142,7 @@ class Detector:
                 if cfg.grouping.method == "gc":
                     return consistency_groups(kpts[sub], cands[i].model[sub], cands[i].distance[sub], m.kp_points,
                                               m.kp_normals, pairs, m.diameter, cfg.grouping, i)
-                overlap = Overlap(*self._icp_pts[i], scene_tree, 0.75 * cfg.grouping.inlier_distance)
+                overlap = Overlap(*self.icp_points[i], scene_tree, 0.75 * cfg.grouping.inlier_distance)
                 return ransac_instances(kpts[sub], cands[i].model[sub], m.kp_points, m.kp_normals, pairs,
                                         m.diameter, cfg.grouping, rng, klab[sub], i, m.points, overlap, knrm[sub])
 
@@ -198,8 +199,8 @@ class Detector:
         hyps = [hyps[j] for j in keep]
         stats["refined"] = len(hyps)
         with tm("refine"):
-            regs = self._map(lambda h: icp(self._icp_pts[h.model_index][0], scene.points, scene.normals,
-                                           h.T_cam_model, cfg.refine, self._icp_pts[h.model_index][1], scene_tree,
+            regs = self._map(lambda h: icp(self.icp_points[h.model_index][0], scene.points, scene.normals,
+                                           h.T_cam_model, cfg.refine, self.icp_points[h.model_index][1], scene_tree,
                                            np.zeros(3)), hyps)
         with tm("verify"):
             vers: list[Verification] = self._map(

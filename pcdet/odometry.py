@@ -33,8 +33,8 @@ class OdometryConfig:
     frame to frame); voxel: KISS-ICP's map voxel (m); min_range / max_range: points used (m); initial_threshold
     and min_motion: KISS-ICP's adaptive threshold start (m) and the motion it ignores (m); icp_voxel:
     frame-to-frame ICP sampling, in metres per metre of the frame's median depth (1 cm at 1 m: a depth
-    camera's noise and pixel footprint grow with range); pixel_stride: every n-th pixel row and column is used (2 keeps a point
-    every 3.6 mm at 1 m, well under the 1 cm ICP grid, and quarters the work)."""
+    camera's noise and pixel footprint grow with range); pixel_stride: every n-th pixel row and column is used
+    (2 keeps a point every 3.6 mm at 1 m, well under the 1 cm ICP grid, and quarters the work)."""
 
     method: str = "kiss+icp"
     voxel: float = 0.02

@@ -167,7 +167,7 @@ class Tracker:
             S = np.column_stack([(u - cam.cx) * z / cam.fx, (v - cam.cy) * z / cam.fy, z])
             S, _, _ = voxel_downsample(S, cfg.preprocess.voxel, representatives=False)
             N = estimate_normals(S, cfg.preprocess.normal_radius, cfg.preprocess.normal_max_nn)
-            src, src_n = self.det._icp_pts[tr.model_index]
+            src, src_n = self.det.icp_points[tr.model_index]
             r = icp(src, S, N, T_pred, cfg.refine, src_n, cKDTree(S), np.zeros(3))
             v_ = verify(m, r.T_target_source, depth, cam, cfg.verify, cfg.preprocess.voxel, stride=2)
             if v_.score < self.cfg.min_score:
@@ -180,7 +180,7 @@ class Tracker:
         """The camera pose that best maps the observed objects onto the map: Kabsch on their model samples."""
         src, dst = [], []
         for tr, T_cm, _ in obs:
-            p = self.det._icp_pts[tr.model_index][0]
+            p = self.det.icp_points[tr.model_index][0]
             src.append(p @ T_cm[:3, :3].T + T_cm[:3, 3])
             dst.append(p @ tr.T_world_model[:3, :3].T + tr.T_world_model[:3, 3])
         src, dst = np.vstack(src), np.vstack(dst)

@@ -4,10 +4,11 @@ Each model keypoint stores the offset to the model's reference point in its own 
 correspondence (scene keypoint s with frame F_s, model keypoint m with frame F_m) votes for where the
 reference point lies in the scene: s + F_s^T F_m (c - m), and for the rotation F_s^T F_m. Votes go into a 3D
 grid with trilinear interpolation; every local maximum with at least ``hough_min_votes`` is a candidate. Its
-voters (correspondences whose predicted reference point falls within one bin of the peak) are then required
-to agree on the rotation too, which makes the grouping 6-DoF: the voter whose rotation has the most others
-within ``hough_rotation_tol_deg`` (among at most 64 evenly spaced voters) anchors the group, the group is fitted by robust Kabsch, and candidates that
-describe the same instance are merged (largest first). Deterministic: no random draws.
+voters (correspondences whose predicted reference point falls within one bin of the peak) are then required to
+agree on the rotation too, which makes the grouping 6-DoF: the voter whose rotation has the most others within
+``hough_rotation_tol_deg`` (among at most 64 evenly spaced voters) anchors the group, the group is fitted by
+robust Kabsch, and candidates that describe the same instance are merged (largest first). Deterministic: no
+random draws.
 """
 from __future__ import annotations
 
