@@ -16,6 +16,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, ProgressColum
 from rich.table import Table
 from rich.text import Text
 
+from .image.cli import image_app
+
 from . import __version__
 from .errors import InputError
 
@@ -23,6 +25,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
                   help="Find known rigid objects in depth data and estimate their 6-DoF poses.")
 config_app = typer.Typer(no_args_is_help=True, help="Pipeline configuration.")
 app.add_typer(config_app, name="config")
+app.add_typer(image_app, name="image")
 console = Console(stderr=True)
 out_console = Console(width=None if sys.stdout.isatty() else 120)  # tables stay readable when piped
 
