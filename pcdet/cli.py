@@ -219,6 +219,11 @@ def _run_tracking(rec, lib, cfg, out: Path, redetect_every: int, workers: int, e
            "pipeline": cfg.to_dict()}
     atomic_write_text(out / "tracks.json", json.dumps(doc, indent=1))
     modes = [m for r in res.values() for m in r.modes]
+    for sid, r in res.items():
+        for f, m in zip([f for f in rec if f.scene_id == sid], r.modes):
+            if m.startswith("failed"):
+                console.print(f"[yellow]skipped[/] scene {sid} image {f.im_id}: {escape(m[8:])}", highlight=False,
+                              soft_wrap=True)
     tr = [s for r in res.values() for s, m in zip(r.seconds, r.modes) if m == "track"]
     fps = f", tracking frames {1 / np.median(tr):.1f} frames/s" if tr else ""
     console.print(f"{len(rec)} frame(s) in {len(res)} scene(s), {modes.count('detect')} full detection(s), "

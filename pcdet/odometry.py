@@ -96,6 +96,11 @@ class Odometry:
         self.f2f = _FrameICP(cfg) if cfg.method in ("icp", "kiss+icp") else None
         self.T = np.eye(4)
         self.last_step = np.eye(4)
+        self.gap = 0
+
+    def skip(self) -> None:
+        """A frame could not be read: the next step predicts two frames' worth of motion (constant velocity)."""
+        self.gap += 1
 
     def step(self, frame: Frame) -> np.ndarray:
         cfg = self.cfg
@@ -107,15 +112,20 @@ class Odometry:
             keep &= (v % cfg.pixel_stride == 0) & (u % cfg.pixel_stride == 0)
         pts = pts[keep]
         T = self.T
+        guess = np.linalg.matrix_power(self.last_step, self.gap + 1)
         if self.kiss is not None:
+            if self.gap:
+                self.kiss.last_pose = T @ np.linalg.matrix_power(self.last_step, self.gap)
             self.kiss.register_frame(np.ascontiguousarray(pts), np.zeros(len(pts)))
             T_new = self.kiss.last_pose.copy()
             if self.f2f is not None:
                 T_new = T @ self.f2f.step(pts, np.linalg.inv(T) @ T_new)
                 self.kiss.last_pose = T_new.copy()  # KISS-ICP predicts the next pose from the corrected one
         else:
-            T_new = T @ self.f2f.step(pts, self.last_step)
-        self.last_step = np.linalg.inv(T) @ T_new
+            T_new = T @ self.f2f.step(pts, guess)
+        if not self.gap:  # after a gap the motion spans several frames: keep the per-frame step
+            self.last_step = np.linalg.inv(T) @ T_new
+        self.gap = 0
         self.T = T_new
         return T_new.copy()
 

@@ -74,14 +74,18 @@ class Track:
 
 @dataclass
 class TrackingResult:
+    """Per frame: the corrected ``T_world_cam`` (None for a frame that could not be read), the mode ("detect",
+    "track" or "failed: <why>") and the seconds it took; and the tracks."""
+
     tracks: list[Track]
-    camera_poses: list[np.ndarray]
+    camera_poses: list[np.ndarray | None]
     modes: list[str]
     seconds: list[float]
 
     def to_dict(self) -> dict:
         return {"tracks": [t.to_dict() for t in self.tracks],
-                "camera_poses": [np.round(T, 9).tolist() for T in self.camera_poses], "frame_modes": self.modes}
+                "camera_poses": [None if T is None else np.round(T, 9).tolist() for T in self.camera_poses],
+                "frame_modes": self.modes}
 
 
 class Tracker:
@@ -191,12 +195,22 @@ class Tracker:
         return kabsch(src, dst)
 
     def run(self, rec, on_frame=None) -> TrackingResult:
-        """Track through every frame of recording ``rec``; ``on_frame(i, mode, seconds)`` after each."""
+        """Track through every frame of recording ``rec``; ``on_frame(i, mode, seconds)`` after each. A frame
+        that cannot be read is reported in its mode and skipped (the odometry bridges the gap)."""
         poses, modes, secs = [], [], []
         for i, ref in enumerate(rec):
-            frame = rec.frame(ref)
             t0 = time.perf_counter()
-            T, mode = self.step(frame)
+            try:
+                frame = rec.frame(ref)
+            except (ValueError, OSError) as e:  # an unreadable frame: reported in the result, tracking goes on
+                frame, T, mode = None, None, f"failed: {e}"
+                self.index += 1
+                self.odo.skip()
+            if frame is not None:
+                try:
+                    T, mode = self.step(frame)
+                except (ValueError, OSError) as e:  # e.g. no valid depth in range
+                    T, mode = None, f"failed: {e}"
             secs.append(time.perf_counter() - t0)
             poses.append(T)
             modes.append(mode)

@@ -52,13 +52,6 @@ def test_every_drawn_line_within_1px_and_1deg(options):
         assert err[0] < 1.0 and err[1] < 1.0, (d, t, err, [(ln.d, ln.theta_deg) for ln in found])
 
 
-def test_orientation_voting_casts_fewer_votes_for_the_same_lines():
-    img = _polygon((240, 320), QUAD)
-    plain = hough_lines(img, max_lines=4)
-    oriented = hough_lines(img, max_lines=4, use_orientation=True)
-    assert sum(ln.votes for ln in oriented) <= sum(ln.votes for ln in plain)
-
-
 def test_drawn_circles_within_1px():
     yy, xx = np.mgrid[0:220, 0:260]
     truth = [(60.3, 70.7, 25.0), (170.0, 120.0, 40.0), (80.0, 170.0, 18.0)]

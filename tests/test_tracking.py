@@ -52,3 +52,20 @@ def test_cli_track_writes_tracks_json(recording, tmp_path):
     (scene,) = doc["scenes"]
     assert len(scene["camera_poses"]) == 20 and scene["frame_modes"].count("detect") == 1
     assert {"id", "model", "obj_id", "T_world_model", "observations"} <= set(scene["tracks"][0])
+
+
+def test_a_corrupt_frame_is_skipped_and_tracking_goes_on(recording, library, tmp_path):
+    import shutil
+
+    rec_dir = tmp_path / "rec"
+    shutil.copytree(recording, rec_dir)
+    bad = rec_dir / "test" / "000001" / "depth" / "000007.png"
+    bad.write_bytes(bad.read_bytes()[:200])
+    rec = open_recording(rec_dir)
+    res = Tracker(Detector(library), TrackingConfig(redetect_every=10)).run(rec)
+    assert res.modes[7].startswith("failed") and "000007.png" in res.modes[7] and res.camera_poses[7] is None
+    assert res.modes[8] == "track" and all(len(t.frames) >= 15 for t in res.tracks)
+    truth = _truth(rec)
+    for t in res.tracks:
+        pos = next(p for o, p in truth if o == t.obj_id)
+        assert max(np.linalg.norm(T[:3, 3] - pos[f]) for f, T in zip(t.frames, t.poses)) < 0.005

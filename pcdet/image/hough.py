@@ -193,13 +193,9 @@ class GeneralizedHough:
             raise ValueError("the template has no edges")
         self.bins = orientation_bins
         self.reference = np.array([(e.shape[1] - 1) / 2, (e.shape[0] - 1) / 2])
-        ang = np.arctan2(gy[ys, xs], gx[ys, xs])
-        self.table = [[] for _ in range(orientation_bins)]
         off = self.reference - np.column_stack([xs, ys])
-        for b, o, a in zip(self._bin(ang), off, ang):
-            self.table[b].append((o, a))
-        self.offsets = off
-        self.angles = ang
+        b = self._bin(np.arctan2(gy[ys, xs], gx[ys, xs]))
+        self.table = [off[b == k] for k in range(orientation_bins)]  # R-table: offsets per orientation bin
         self.n_edges = len(xs)
 
     def _bin(self, ang):
@@ -224,11 +220,10 @@ class GeneralizedHough:
                 # the scene pixel's orientation, turned back by rot, indexes the template's table
                 b = self._bin(ang - np.radians(rot))
                 for k in range(self.bins):
-                    entries = self.table[k]
                     sel = np.flatnonzero(b == k)
-                    if not entries or len(sel) == 0:
+                    if len(self.table[k]) == 0 or len(sel) == 0:
                         continue
-                    offs = np.array([o for o, _ in entries]) @ R.T * sc
+                    offs = self.table[k] @ R.T * sc
                     cx = np.rint(xs[sel, None] + offs[None, :, 0]).astype(int).ravel()
                     cy = np.rint(ys[sel, None] + offs[None, :, 1]).astype(int).ravel()
                     inside = (cx >= 0) & (cx < W) & (cy >= 0) & (cy < H)
