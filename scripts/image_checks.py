@@ -10,31 +10,8 @@ import numpy as np
 
 from pcdet.image import LinearCombination, ransac_affine, ransac_homography
 from pcdet.image.hough import edge_map, hough_circles, hough_lines
+from pcdet.image.liu_wang import EXAMPLES
 from pcdet.image.transforms import apply
-
-PYR = [[(0.10, 1.40), (-2.10, -1.20), (0.80, -1.00), (1.90, -1.70)],
-       [(-0.10, 1.30), (-2.10, -1.30), (0.50, -0.50), (2.20, -1.50)],
-       [(-0.10, 1.20), (-2.00, -1.40), (0.20, -0.10), (2.30, -1.10)]]
-MAIN = [[(-1.90, 0.40), (1.00, -0.20), (1.70, -1.10), (0.70, -2.10)],
-        [(-2.00, 0.60), (0.70, -0.50), (1.70, -1.20), (0.30, -2.20)],
-        [(-2.00, 0.70), (0.40, -0.70), (1.70, -1.30), (0.00, -2.40)]]
-DOOR = [[(-1.90, 0.40), (1.00, 0.30), (2.00, 1.20), (-0.80, 1.30)],
-        [(-2.00, 0.60), (0.70, 0.60), (2.10, 1.40), (-0.40, 1.40)],
-        [(-2.00, 0.70), (0.40, 0.80), (2.20, 1.70), (-0.10, 1.60)]]
-# (name, views, unknown points, paper's x coefficients, paper's y coefficients); None: garbled in the text
-CASES = [
-    ("pyramid, same (4.1 iv)", PYR, [(-0.20, 1.2), (-2.0, -1.5), (0.0, 0.0), (2.3, -0.9)],
-     [-0.23, None, None, -0.06], [0.46, -1.32, None, -0.01]),
-    ("pyramid, other (4.1 v)", PYR, [(-0.3, 2.3), (-2.0, -1.5), (0.0, 0.0), (2.3, -0.9)],
-     [-0.68, None, 0.68, None], [1.87, -3.32, 2.91, None]),
-    ("closet main (4.3 iv)", MAIN, [(-2.0, 0.8), (0.3, -0.8), (1.7, -1.3), (-0.2, -2.4)],
-     [-1.12, 1.78, 0.31, 0.05], [-0.32, 0.09, 1.21, 0.03]),
-    ("closet door (4.3 iv)", DOOR, [(-2.0, 0.8), (0.1, 1.2), (2.2, 2.1), (0.0, 1.7)],
-     [0.62, -2.00, 2.38, -0.07], [None, 0.67, 1.00, 1.60]),
-    ("other door (4.3 v)", DOOR, [(-2.0, 0.8), (-1.0, 1.0), (1.1, 1.9), (0.0, 1.7)],
-     ["±0.26", -1.68, 2.62, -0.61], [0.50, -0.92, 0.67, 0.40]),
-]
-
 
 def _fmt(v):
     return "?" if v is None else (v if isinstance(v, str) else f"{v:.2f}")
@@ -43,7 +20,7 @@ def _fmt(v):
 def lcm_table():
     print("| example | coefficient | paper | pcdet |")
     print("|---|---|---|---|")
-    for name, views, pts, px, py in CASES:
+    for name, views, pts, px, py in EXAMPLES:
         lc = LinearCombination().fit(views, pts, allow_degenerate=True)
         for axis, paper, got, rank in (("x", px, lc.coef_x, lc.rank_x), ("y", py, lc.coef_y, lc.rank_y)):
             note = "" if rank == 4 else f" (singular: rank {rank})"

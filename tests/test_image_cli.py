@@ -6,12 +6,10 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from pcdet.cli import app
+from pcdet.image.liu_wang import CLOSET_MAIN as MAIN
 from pcdet.image.transforms import apply
 
 runner = CliRunner()
-MAIN = [[[-1.90, 0.40], [1.00, -0.20], [1.70, -1.10], [0.70, -2.10]],
-        [[-2.00, 0.60], [0.70, -0.50], [1.70, -1.20], [0.30, -2.20]],
-        [[-2.00, 0.70], [0.40, -0.70], [1.70, -1.30], [0.00, -2.40]]]
 
 
 def test_lcm_prints_the_paper_coefficients_and_decides_per_threshold(tmp_path):
