@@ -120,11 +120,13 @@ class Camera:
                              f"{self.width}x{self.height}")
         flat = depth.reshape(-1)
         pixels = np.flatnonzero(np.isfinite(flat) & (flat > 0))
-        z = flat[pixels].astype(np.float64)
-        v, u = np.divmod(pixels, self.width)
-        x = (u - self.cx) * z / self.fx
-        y = (v - self.cy) * z / self.fy
-        return np.stack([x, y, z], axis=1), pixels
+        return self.backproject_pixels(pixels, flat[pixels]), pixels
+
+    def backproject_pixels(self, pixels: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """(N,) flat pixel indices ``v * W + u`` with depths ``z`` (N,) m -> (N, 3) float64 camera-frame points."""
+        z = np.asarray(z, np.float64)
+        v, u = np.divmod(np.asarray(pixels), self.width)
+        return np.stack([(u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z], axis=1)
 
     def project(self, points: np.ndarray) -> np.ndarray:
         """(N, 3) camera-frame points (m) -> (N, 2) float pixel coordinates (u, v)."""

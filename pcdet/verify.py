@@ -46,13 +46,16 @@ class Verification:
                 and self.penetration <= cfg.max_penetration)
 
 
-def _bbox_pixels(camera: Camera, pts_cam: np.ndarray, stride: int = 1) -> np.ndarray | None:
+def bbox_pixels(camera: Camera, pts_cam: np.ndarray, stride: int = 1, margin: int = 1) -> np.ndarray | None:
+    """Flat pixel indices of the image box around the projection of ``pts_cam`` (N, 3) (points in front of the
+    camera only), grown by ``margin`` pixels and clipped to the image; every ``stride``-th row and column. None
+    when the box misses the image."""
     front = pts_cam[:, 2] > 1e-3
     if not front.any():
         return None
     uv = camera.project(pts_cam[front])
-    u0, v0 = np.floor(uv.min(axis=0)).astype(int) - 1
-    u1, v1 = np.ceil(uv.max(axis=0)).astype(int) + 1
+    u0, v0 = np.floor(uv.min(axis=0)).astype(int) - margin
+    u1, v1 = np.ceil(uv.max(axis=0)).astype(int) + margin
     u0, v0 = max(u0, 0), max(v0, 0)
     u1, v1 = min(u1, camera.width - 1), min(v1, camera.height - 1)
     if u0 > u1 or v0 > v1:
@@ -67,7 +70,7 @@ def render_model(model: ObjectModel, T_cam_model: np.ndarray, camera: Camera, sp
     ``stride`` > 1, off every stride-th row and column)."""
     pts = model.points @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
     if model.is_mesh:
-        pix = _bbox_pixels(camera, pts, stride)
+        pix = bbox_pixels(camera, pts, stride)
         if pix is None:
             return np.zeros((camera.height, camera.width), np.float32)
         return render_meshes(camera, [(model.vertices, model.faces, T_cam_model)], pix).depth
@@ -82,7 +85,7 @@ def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camer
     P = model.points @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
     if model.is_mesh:
         # cast only the rays of the model's bounding box
-        box = _bbox_pixels(camera, P, stride)
+        box = bbox_pixels(camera, P, stride)
         if box is None:
             box = np.zeros(0, np.int64)
         rv = mesh_depth_at(camera, model.vertices, model.faces, T_cam_model, box) if len(box) else np.zeros(0)

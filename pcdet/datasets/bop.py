@@ -2,7 +2,6 @@
 ``scene_camera.json``, ``scene_gt.json`` (poses in mm) and ``<root>/models/``."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -10,17 +9,11 @@ import numpy as np
 from ..camera import Camera
 from ..errors import InputError
 from ..frame import Frame
+from ..io.jsonfile import read_json
 from .base import FrameRef
 
 
 BopImage = FrameRef  # one image of a BOP split: (scene_id, im_id)
-
-
-def _read_json(path: Path) -> dict:
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise InputError(f"not valid JSON ({e})", path) from None
 
 
 def pose_from_bop(entry: dict) -> np.ndarray:
@@ -56,13 +49,13 @@ class BopDataset:
         self._json: dict[tuple[int, str], dict] = {}
         self.models_dir = self.root / "models" if (self.root / "models").is_dir() else None
         cam = self.root / "camera.json"
-        self.base_camera = _read_json(cam) if cam.is_file() else {}
+        self.base_camera = read_json(cam) if cam.is_file() else {}
         self.images: list[BopImage] = []
         for sdir in sorted(p for p in self.split_dir.iterdir() if p.is_dir() and p.name.isdigit()):
             sc = sdir / "scene_camera.json"
             if not sc.is_file():
                 continue
-            ids = sorted(int(k) for k in _read_json(sc))
+            ids = sorted(int(k) for k in read_json(sc))
             self.images += [BopImage(int(sdir.name), i) for i in ids]
 
     @classmethod
@@ -99,7 +92,7 @@ class BopDataset:
         key = (scene_id, name)
         if key not in self._json:
             p = self.scene_dir(scene_id) / name
-            self._json[key] = _read_json(p) if p.is_file() else {}
+            self._json[key] = read_json(p) if p.is_file() else {}
         return self._json[key]
 
     def depth_path(self, img: BopImage) -> Path:

@@ -8,21 +8,9 @@ from typing import Optional
 import numpy as np
 import typer
 
+from ..io.jsonfile import read_json
+
 image_app = typer.Typer(no_args_is_help=True, help="Recognition from 2D views: LCM, Hough, homographies.")
-
-
-def _read_json(path: Path) -> dict:
-    from ..errors import InputError
-
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: file not found")
-    try:
-        doc = json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise InputError(f"not valid JSON ({e})", path) from None
-    if not isinstance(doc, dict):
-        raise InputError("expected a JSON object", path)
-    return doc
 
 
 def _lcm_part(name: str, spec: dict, thresholds: list[float], table) -> dict[float, bool]:
@@ -58,7 +46,7 @@ def lcm(views_json: Path = typer.Argument(..., help="JSON: views, points, check,
 
     @_guard
     def go():
-        doc = _read_json(views_json)
+        doc = read_json(views_json)
         thresholds = [float(t) for t in doc.get("thresholds", [0.2])]
         parts = doc["parts"] if "parts" in doc else {"object": doc}
         decisions = {name: _lcm_part(name, spec, thresholds, typer.echo) for name, spec in parts.items()}
@@ -146,7 +134,7 @@ def homography(matches_json: Path = typer.Argument(..., help='JSON: {"src": [[x,
         from ..io.atomic import atomic_write_text
         from .transforms import ransac_affine, ransac_homography
 
-        doc = _read_json(matches_json)
+        doc = read_json(matches_json)
         r = (ransac_affine if affine else ransac_homography)(doc["src"], doc["dst"], threshold, seed=seed)
         typer.echo("affine" if affine else "homography")
         for row in r.H:
