@@ -10,6 +10,7 @@ import io
 import json
 import os
 import warnings
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
@@ -305,7 +306,7 @@ def _save(model: ObjectModel, path: Path) -> None:
 
 
 def _load(path: Path) -> ObjectModel:
-    with np.load(path, allow_pickle=False) as z:
+    with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
         meta = json.loads(str(z["meta"]))
         arrays = {k: z[k] for k in z.files if k != "meta"}
     return ObjectModel(**meta, **arrays)
@@ -333,8 +334,8 @@ def load_model(path, cfg: PipelineConfig | None = None, units="auto", obj_id: in
             m = _load(cpath)
             m.path = str(path)
             return m
-        except (OSError, ValueError, KeyError, TypeError):
-            pass  # a corrupt or stale cache entry (other fields) is rebuilt below
+        except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile):
+            pass  # a corrupt (truncated: BadZipFile) or stale (other fields) cache entry is rebuilt below
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         m = build_model(path, cfg, units, obj_id, name)

@@ -81,3 +81,27 @@ def test_cache_hit_skips_building(tmp_path, monkeypatch):
     monkeypatch.undo()
     other = load_model(tmp_path / "part.ply", cfg.replace(features={"radius": 0.03}), cache_dir=tmp_path / "cache")
     assert len(list((tmp_path / "cache").glob("*.npz"))) == 2 and other.features.shape[1] == 33
+
+
+def test_cache_rebuilds_on_a_changed_file_and_on_a_corrupt_entry(tmp_path, monkeypatch):
+    """The cache key is the file's bytes: an edited model is rebuilt (a new entry); a truncated entry is
+    rebuilt in place and the result equals a fresh build."""
+    shutil.copy(MODELS / "obj_000005.ply", tmp_path / "part.ply")
+    cache = tmp_path / "cache"
+    first = load_model(tmp_path / "part.ply", cache_dir=cache)
+    (entry,) = cache.glob("*.npz")
+    builds = []
+    real_build = model_mod.build_model
+    monkeypatch.setattr(model_mod, "build_model", lambda *a, **k: builds.append(1) or real_build(*a, **k))
+    entry.write_bytes(entry.read_bytes()[:200])  # a crash mid-write on another system, say
+    again = load_model(tmp_path / "part.ply", cache_dir=cache)
+    assert builds == [1] and list(cache.glob("*.npz")) == [entry]
+    np.testing.assert_array_equal(again.features, first.features)
+    load_model(tmp_path / "part.ply", cache_dir=cache)
+    assert builds == [1]  # the rebuilt entry is used
+    mesh = trimesh.load(tmp_path / "part.ply", process=False)
+    mesh.apply_scale(1.5)
+    mesh.export(tmp_path / "part.ply")
+    bigger = load_model(tmp_path / "part.ply", cache_dir=cache)
+    assert builds == [1, 1] and len(list(cache.glob("*.npz"))) == 2
+    assert bigger.diameter == pytest.approx(1.5 * first.diameter, rel=1e-6)
