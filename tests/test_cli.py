@@ -1,5 +1,6 @@
 """The command line: one clear line and a non-zero exit for bad input; runs that survive bad images;
 byte-identical results from two runs (also with a different thread count)."""
+import csv
 import json
 import os
 import shutil
@@ -102,37 +103,115 @@ def test_run_skips_a_corrupt_image_and_writes_the_rest(synth_small, tmp_path):
     assert rows[0] == "scene_id,im_id,obj_id,score,R,t,time" and len(rows) > 2
 
 
-def test_run_is_byte_identical_across_runs_and_threads(synth_small, tmp_path):
+def test_run_is_byte_identical_across_runs_workers_and_threads(synth_small, tmp_path):
+    """The same results.csv from one process (the detector's thread pool at the machine's cores, numpy's
+    threads at 1) and from two worker processes (one detector thread each, numpy's threads at 2)."""
     outs = []
-    for i, threads in enumerate(("1", "2")):
+    for i, (workers, threads) in enumerate((("1", "1"), ("2", "2"))):
         env = dict(os.environ, OMP_NUM_THREADS=threads, OPENBLAS_NUM_THREADS=threads)
         out = tmp_path / f"run{i}"
         p = subprocess.run([sys.executable, "-m", "pcdet.cli", "run", str(synth_small), "--out", str(out),
-                            "--seed", "3"], env=env, capture_output=True, text=True)
+                            "--seed", "3", "--workers", workers], env=env, capture_output=True, text=True)
         assert p.returncode == 0, p.stderr
         outs.append((out / "results.csv").read_bytes())
     assert outs[0] == outs[1] and outs[0].count(b"\n") > 3
 
 
 def test_eval_prints_and_writes_json(synth_small, tmp_path):
-    assert _cli("run", synth_small, "--out", tmp_path / "r", "--targets", "gt").exit_code == 0
+    """results.csv rows are the frame JSON's poses in BOP units (R row-major, t in mm), and eval scores them:
+    with the objects given, at least 7 of the 9 instances within ADD 0.1 d (measured: 8)."""
+    res = _cli("run", synth_small, "--out", tmp_path / "r", "--targets", "gt")
+    assert res.exit_code == 0, res.output
+    rows = list(csv.DictReader(open(tmp_path / "r" / "results.csv")))
+    assert len(rows) >= 7
+    for row in rows:
+        doc = json.loads((tmp_path / "r" / "frames" / f"{int(row['scene_id']):06d}_{int(row['im_id']):06d}.json")
+                         .read_text())
+        det = next(d for d in doc["detections"] if d["obj_id"] == int(row["obj_id"])
+                   and abs(d["score"] - float(row["score"])) < 1e-6)
+        T = np.array(det["T_cam_model"])
+        np.testing.assert_allclose(np.array(row["R"].split(), float), T[:3, :3].reshape(-1), atol=1e-8)
+        np.testing.assert_allclose(np.array(row["t"].split(), float), T[:3, 3] * 1000, atol=1e-5)
+        assert row["time"] == "-1.000"  # not measured unless --times: reruns stay byte-identical
+    # --targets gt keeps at most as many instances of an object as the frame's ground truth lists
+    gt = {}
+    for sdir in sorted((synth_small / "test").iterdir()):
+        for im, entries in json.loads((sdir / "scene_gt.json").read_text()).items():
+            for e in entries:
+                key = (int(sdir.name), int(im), e["obj_id"])
+                gt[key] = gt.get(key, 0) + 1
+    for key in {(int(r["scene_id"]), int(r["im_id"]), int(r["obj_id"])) for r in rows}:
+        n = sum((int(r["scene_id"]), int(r["im_id"]), int(r["obj_id"])) == key for r in rows)
+        assert n <= gt.get(key, 0), key
     res = _cli("eval", synth_small, tmp_path / "r" / "results.csv", "--json", tmp_path / "e.json")
     assert res.exit_code == 0, res.output
     ev = json.loads((tmp_path / "e.json").read_text())
-    assert ev["overall"]["instances"] == 9 and 0 <= ev["overall"]["recall_add"] <= 1
+    assert ev["overall"]["instances"] == 9 and ev["overall"]["recall_add"] >= 7 / 9, ev["overall"]
     assert "ADD-S" in res.output
 
 
+def test_run_times_fills_the_time_column(synth_small, tmp_path):
+    """--times writes each frame's measured seconds (the sum of its stage times) into every row of that frame."""
+    assert _cli("run", synth_small, "--out", tmp_path / "r", "--times").exit_code == 0
+    rows = list(csv.DictReader(open(tmp_path / "r" / "results.csv")))
+    assert rows
+    for row in rows:
+        doc = json.loads((tmp_path / "r" / "frames" / f"{int(row['scene_id']):06d}_{int(row['im_id']):06d}.json")
+                         .read_text())
+        assert float(row["time"]) == pytest.approx(sum(doc["timing_s"].values()), abs=2e-3)
+        assert float(row["time"]) > 0
+
+
+def test_threshold_selection_end_to_end(synth_small, tmp_path):
+    """verify.selection = "threshold" (per-detection thresholds, greedy pixel conflicts) runs through the CLI,
+    is written into the resolved config, and finds most objects (at least 7 of 9 without targets)."""
+    p = tmp_path / "thr.toml"
+    p.write_text('[verify]\nselection = "threshold"\n')
+    assert _cli("run", synth_small, "--out", tmp_path / "r", "--pipeline", p).exit_code == 0
+    assert 'selection = "threshold"' in (tmp_path / "r" / "config.toml").read_text()
+    res = _cli("eval", synth_small, tmp_path / "r" / "results.csv", "--json", tmp_path / "e.json")
+    assert res.exit_code == 0, res.output
+    ev = json.loads((tmp_path / "e.json").read_text())["overall"]
+    assert ev["recall_adds"] >= 7 / 9 and ev["precision_adds"] >= 0.75, ev
+
+
+def test_demo_runs_and_scores(tmp_path):
+    """pcdet demo: renders 2 scenes, detects, evaluates, and draws an overlay of the first image."""
+    res = _cli("demo", "--out", tmp_path / "demo", "--scenes", "2")
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "demo" / "run" / "results.csv").is_file()
+    assert np.asarray(Image.open(tmp_path / "demo" / "overlay.png")).shape == (480, 640, 3)
+    assert "ADD-S" in res.output and "median" in res.output
+
+
 def test_register_bunny_cli(tmp_path):
+    """The JSON holds T_target_source: it moves the bunny mesh onto scan bun000 within 5 mm (bun.conf's pose)."""
+    from scipy.spatial.transform import Rotation
+
+    from pcdet.model import load_geometry
+
     d = shared("bunny")
     res = _cli("register", d / "bun_zipper_res3.ply", d / "bun000.ply", "--out", tmp_path / "T.json")
     assert res.exit_code == 0, res.output
     T = np.array(json.loads((tmp_path / "T.json").read_text())["T_target_source"])
-    assert T.shape == (4, 4) and abs(np.linalg.det(T[:3, :3]) - 1) < 1e-6
+    w = next(ln.split() for ln in (d / "bun.conf").read_text().splitlines() if "bun000.ply" in ln)
+    T_model_scan = np.eye(4)
+    T_model_scan[:3, :3] = Rotation.from_quat([float(v) for v in w[5:9]]).as_matrix().T
+    T_model_scan[:3, 3] = [float(v) for v in w[2:5]]
+    T_gt = np.linalg.inv(T_model_scan)
+    X = load_geometry(d / "bun_zipper_res3.ply").vertices
+    err = np.linalg.norm(X @ T[:3, :3].T + T[:3, 3] - (X @ T_gt[:3, :3].T + T_gt[:3, 3]), axis=1)
+    assert err.max() < 0.005, err.max()
 
 
 def test_config_dump_is_valid_toml():
+    """config dump prints the resolved preset as TOML that loads back to the same configuration."""
     import tomllib
 
+    from pcdet.config import PipelineConfig, load_pipeline
+
     res = _cli("config", "dump")
-    assert res.exit_code == 0 and tomllib.loads(res.output)["grouping"]["method"] == "ransac"
+    assert res.exit_code == 0
+    assert PipelineConfig.from_dict(tomllib.loads(res.output)) == PipelineConfig()
+    res = _cli("config", "dump", "--pipeline", "crowded+hough")
+    assert PipelineConfig.from_dict(tomllib.loads(res.output)) == load_pipeline("crowded+hough")

@@ -64,3 +64,16 @@ def test_presets_layer_left_to_right():
     assert cfg.verify == load_pipeline("crowded").verify and cfg.refine == load_pipeline("crowded").refine
     with pytest.raises(FileNotFoundError, match="nosuch"):
         load_pipeline("crowded+nosuch")
+
+
+def test_layering_overrides_the_same_field_and_keeps_the_rest(tmp_path):
+    """Two layers set the same field: the right one wins; fields only the left one sets survive; a field
+    neither sets keeps the code's default."""
+    a, b = tmp_path / "a.toml", tmp_path / "b.toml"
+    a.write_text("seed = 5\n[verify]\nmin_score = 0.5\nclutter_weight = 2.0\n[refine]\niterations = 12\n")
+    b.write_text("seed = 9\n[verify]\nmin_score = 0.6\n")
+    cfg = load_pipeline(f"{a}+{b}")
+    assert cfg.seed == 9 and cfg.verify.min_score == 0.6
+    assert cfg.verify.clutter_weight == 2.0 and cfg.refine.iterations == 12
+    assert cfg.verify.depth_tolerance == PipelineConfig().verify.depth_tolerance
+    assert load_pipeline(f"{b}+{a}").verify.min_score == 0.5

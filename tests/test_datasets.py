@@ -103,13 +103,26 @@ def test_folder_and_cloud_readers(tmp_path, sequence):
 
 
 def test_redwood_layout_of_the_open3d_sample(tmp_path):
+    """The Open3D sample: 5 frames with colour and the PrimeSense intrinsics; the camera poses are
+    trajectory.log's matrices, and they are T_world_cam: frame 4's points moved by inv(P0) P4 land on frame 0's
+    (median 6.0 mm, 97 % within 2 cm; unmoved: 20.9 mm, 48 %)."""
+    from scipy.spatial import cKDTree
+
+    from pcdet.datasets.redwood import read_log
+
     d = shared("open3d_rgbd")
     rec = open_recording(d)
     assert rec.format == "redwood" and len(rec) == 5
     f = rec.frame(rec.images[0])
     assert f.rgb is not None and f.camera.fx == 525.0 and f.camera.cx == 319.5
     poses = rec.camera_poses()
-    assert len(poses) == 5 and all(np.allclose(T[3], [0, 0, 0, 1]) for T in poses.values())
+    log = read_log(d / "trajectory.log")
+    assert len(poses) == 5 and all(np.array_equal(poses[r], T) for r, T in zip(rec, log))
+    p0 = rec.frame(rec.images[0]).points()[0][::4]
+    p4 = rec.frame(rec.images[4]).points()[0][::4]
+    T = np.linalg.inv(poses[rec.images[0]]) @ poses[rec.images[4]]
+    dist, _ = cKDTree(p0).query(p4 @ T[:3, :3].T + T[:3, 3])
+    assert np.median(dist) < 0.01 and (dist < 0.02).mean() > 0.9
 
 
 def test_unknown_layout_names_the_known_ones(tmp_path):

@@ -11,7 +11,17 @@ def test_voxel_keypoints_spacing(rng):
     assert len(kp) == 125 and (np.diff(kp) > 0).all()  # one per occupied 2 cm cell, sorted indices
 
 
-def test_iss_keypoints_on_a_box_corner_region(library):
-    m = library[4]
-    kp = select_keypoints(m.points, KeypointConfig(method="iss", iss_salient_radius=0.012, iss_non_max_radius=0.01))
-    assert 5 < len(kp) < len(m.points) / 4  # ISS keeps a salient minority of the samples
+def test_iss_keypoints_find_every_corner_of_a_cube():
+    """ISS on the even surface samples of a 10 cm cube (3 mm grid): each of the 8 corners has a keypoint within
+    1 cm (measured: 4.7-7.0 mm), and ISS keeps a small minority of the samples (measured: 112 of 6534)."""
+    import trimesh
+
+    from pcdet.cloud import voxel_downsample
+
+    pts, _ = trimesh.sample.sample_surface_even(trimesh.creation.box((0.1, 0.1, 0.1)), 30000, seed=1)
+    pts, _, _ = voxel_downsample(np.asarray(pts), 0.003, representatives=False)
+    kp = select_keypoints(pts, KeypointConfig(method="iss", iss_salient_radius=0.012, iss_non_max_radius=0.01))
+    corners = np.array([[x, y, z] for x in (-0.05, 0.05) for y in (-0.05, 0.05) for z in (-0.05, 0.05)])
+    nearest = np.linalg.norm(pts[kp][:, None] - corners[None], axis=2).min(axis=0)
+    assert nearest.max() < 0.01, nearest
+    assert 8 <= len(kp) < len(pts) / 20 and (np.diff(kp) > 0).all()

@@ -71,3 +71,23 @@ def test_vsd_known_cases():
     # count (BOP'19), so all 16 pixels are compared: wrong at tau = 1 cm, right at tau = 5 cm
     e = metrics.vsd(np.where(d_gt > 0, d_gt + 0.03, 0), d_gt, test, [0.01, 0.05])
     assert e[0] == pytest.approx(1.0) and e[1] == pytest.approx(0.0)
+
+
+def test_average_recall_at_a_known_error():
+    """One instance, estimate shifted 0.12 d sideways at 1 m depth (model points on the plane z = 0): MSSD is
+    0.12 d, below 8 of the 10 thresholds 0.05..0.5 d; the shift is 6 px (f = 500, d = 0.1 m), below 9 of the 10
+    thresholds 5..50 px. So AR_MSSD 0.8, AR_MSPD 0.9, AR 0.85 (no VSD), and ADD 0.12 d misses recall_add."""
+    rng = np.random.default_rng(3)
+    X = np.c_[rng.uniform(-0.04, 0.04, (300, 2)), np.zeros(300)]
+    T = np.eye(4)
+    T[2, 3] = 1.0
+    est = T.copy()
+    est[0, 3] += 0.012
+    K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
+    errs, fp = metrics.match_image([{"obj_id": 1, "T_cam_model": T, "visib_fract": 1.0}],
+                                   [{"obj_id": 1, "score": 1.0, "T_cam_model": est}], {1: X}, K,
+                                   diameters={1: 0.1})
+    assert fp == 0 and errs[0].mssd == pytest.approx(0.012) and errs[0].mspd == pytest.approx(6.0)
+    s = metrics.summarize(errs, {1: 0.1}, fp)
+    assert s["ar_mssd"] == pytest.approx(0.8) and s["ar_mspd"] == pytest.approx(0.9)
+    assert s["ar"] == pytest.approx(0.85) and s["recall_add"] == 0.0 and "ar_vsd" not in s
