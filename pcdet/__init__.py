@@ -4,8 +4,9 @@ from .config import PipelineConfig, load_pipeline
 from .detector import Detection, DetectionResult, Detector
 from .errors import InputError
 from .frame import Frame
-from .model import ModelLibrary, ObjectModel
-from .register import Registration, RegisterConfig, register
+from .library import ModelLibrary
+from .model import ObjectModel
+from .register import RegisterConfig, Registration, register
 
 __version__ = "0.1.0"
 

@@ -70,6 +70,22 @@ def estimate_normals(points: np.ndarray, radius: float, max_nn: int = 30,
     return n
 
 
+def outward_normals(points: np.ndarray, radius: float, max_nn: int = 30) -> np.ndarray:
+    """Unit normals (N, 3) of an unoriented cloud (a scanned model, say), oriented consistently along the
+    surface (Open3D's tangent-plane propagation) and then, as a whole, away from the centroid (outward for
+    closed objects and for single views of convex-ish ones)."""
+    from ._o3d import o3d
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    pc.normals = o3d.utility.Vector3dVector(estimate_normals(points, radius, max_nn, viewpoint=None))
+    if len(points) > 10:
+        pc.orient_normals_consistent_tangent_plane(10)
+    n = np.asarray(pc.normals).copy()
+    if ((points - points.mean(axis=0)) * n).sum(axis=1).mean() < 0:
+        n = -n
+    return n
+
+
 def diameter(points: np.ndarray) -> float:
     """Largest distance between two of the (N, 3) points (m), over their convex hull."""
     from scipy.spatial import ConvexHull

@@ -1,4 +1,9 @@
-"""The detector: the only place that knows the order of the stages."""
+"""The detector: the only place that knows the order of the stages.
+
+preprocess -> keypoints -> features (a ``Scene``) -> matching and grouping per model (a ``Grouper`` from the
+registry, on ``PreparedModel`` s) -> a quick look at each raw pose -> ICP on the best few per model ->
+verification -> selection (global or by threshold).
+"""
 from __future__ import annotations
 
 import os
@@ -8,25 +13,22 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from .cloud import voxel_downsample
+from .align import transform
+from .cloud import estimate_normals, voxel_downsample
 from .config import PipelineConfig
 from .features import fpfh
 from .frame import Frame
 from .global_verify import candidate_terms, select
-from .grouping import Hypothesis, ransac_instances
-from .grouping.consistency import consistency_groups
-from .grouping.hough import hough_groups
-from .lrf import shot_lrf
-from .grouping.ransac import Overlap
-from .grouping.pairs import scene_pairs
+from .grouping import Hypothesis, make_grouper
 from .keypoints import select_keypoints
+from .library import ModelLibrary
 from .matching import match_features
-from .model import ModelLibrary
+from .prepared_model import PreparedModel
 from .preprocess import preprocess
-from .refine import icp
-from .verify import Verification, resolve_conflicts, verify
+from .refine import RegistrationResult, icp
+from .scene import Scene
+from .verify import Verification, bbox_pixels, resolve_conflicts, verify
 
 
 @dataclass
@@ -62,6 +64,16 @@ class DetectionResult:
     stats: dict[str, int] = field(default_factory=dict)
 
 
+@dataclass
+class Refinement:
+    """What ``Detector.refine`` made of a predicted pose. ``in_view`` is False when the pose puts the model
+    behind the camera or out of the image (nothing can be said about it); ``detection`` is None when too little
+    measured depth lies around the predicted pose to refine it, else the refined, verified pose."""
+
+    in_view: bool
+    detection: Detection | None = None
+
+
 class _Timer:
     def __init__(self):
         self.t: dict[str, float] = {}
@@ -80,21 +92,20 @@ class Detector:
     >>> result = det.detect(Frame.from_depth_png("depth.png", "camera.json"))
     """
 
-    def __init__(self, library: ModelLibrary, config: PipelineConfig | None = None, workers: int | None = None):
+    def __init__(self, library: ModelLibrary, config: PipelineConfig | None = None, *, workers: int | None = None):
         """``workers``: threads for the per-model and per-hypothesis work (default: the machine's cores). Every
         task is independent and has its own generator, so the output is the same for any number."""
         self.library = library
         self.config = config or PipelineConfig()
         self.workers = max(1, workers or os.cpu_count() or 1)
         self._pool = ThreadPoolExecutor(self.workers) if self.workers > 1 else None
-        self._trees = [cKDTree(m.features) for m in library]
-        self._reference = [(m.points.max(0) + m.points.min(0)) / 2 for m in library]  # Hough vote target
-        # per model: (points (P, 3), normals (P, 3)) on a grid of twice the scene voxel, what ICP moves (far
-        # fewer than verification needs; the shape is kept)
-        self.icp_points: list[tuple[np.ndarray, np.ndarray]] = []
-        for m in library:
-            p, n, _ = voxel_downsample(m.points, 2 * self.config.preprocess.voxel, m.normals, representatives=False)
-            self.icp_points.append((p, n))
+        self.grouper = make_grouper(self.config.grouping)
+        icp_spacing = 2 * self.config.preprocess.voxel
+        self.models = [PreparedModel.build(m, i, icp_spacing=icp_spacing) for i, m in enumerate(library)]
+
+    def __repr__(self) -> str:
+        return (f"Detector({len(self.library)} models, grouping={self.config.grouping.method!r}, "
+                f"selection={self.config.verify.selection!r}, workers={self.workers})")
 
     def _map(self, fn, items) -> list:
         """``[fn(x) for x in items]``, on the thread pool when there is one; results keep the input order."""
@@ -103,65 +114,59 @@ class Detector:
             return [fn(x) for x in items]
         return list(self._pool.map(fn, items))
 
-    def _hypotheses(self, scene, scene_tree, kp: np.ndarray, feats: np.ndarray, models: list[int], tm: "_Timer"
-                    ) -> list[Hypothesis]:
-        """Match scene keypoints ``kp`` (their FPFH ``feats``) against each model in ``models`` and group the
-        candidates into pose hypotheses, one model per thread."""
+    def scene(self, frame: Frame, tm: _Timer | None = None) -> Scene:
+        """The frame's ``Scene``: preprocessed cloud, keypoints and their FPFH."""
+        cfg, tm = self.config, tm or _Timer()
+        with tm("preprocess"):
+            cloud = preprocess(frame, cfg.preprocess, cfg.seed)
+        with tm("keypoints"):
+            kp = select_keypoints(cloud.points, cfg.keypoints)
+        with tm("features"):
+            feats = fpfh(cloud.points, cloud.normals, kp, cfg.features)
+        return Scene(cloud.points, cloud.normals, cloud.labels, cloud.plane, kp, feats,
+                     lrf_radius=cfg.features.lrf_support)
+
+    def _hypotheses(self, scene: Scene, models: list[PreparedModel], tm: _Timer) -> list[Hypothesis]:
+        """Match the scene's keypoints against each model and group the candidates into pose hypotheses, one
+        model per thread, each with its own generator (so neither order nor threads change the result)."""
         cfg = self.config
-        hyps: list[Hypothesis] = []
         seeds = np.random.SeedSequence(cfg.seed).spawn(len(self.library))
-        kpts, knrm, klab = scene.points[kp], scene.normals[kp], scene.labels[kp]
-        scene_lrf = None
-        if cfg.grouping.method == "hough":
+        if self.grouper.needs_lrfs:
             with tm("lrf"):
-                scene_lrf, ok = shot_lrf(scene.points, kpts, cfg.features.lrf_support, scene_tree)
-                scene_lrf[~ok] = np.nan
+                scene.lrfs
         with tm("matching"):
-            cands = {i: match_features(feats, self.library[i].features, cfg.matching, self._trees[i],
-                                       self.workers) for i in models}
+            cands = {pm.index: match_features(scene.descriptors, pm.model.features, cfg.matching,
+                                              model_tree=pm.descriptor_tree, workers=self.workers)
+                     for pm in models}
         with tm("grouping"):
-            # large models need no denser grid of scene points than diameter / grid_per_diameter
-            pair_cache: dict[tuple[float, float], tuple] = {}
-            keys = {}
-            for i in models:
-                m = self.library[i]
-                step = max(cfg.keypoints.spacing, m.diameter / cfg.grouping.grid_per_diameter)
-                keys[i] = (round(step, 4), round(m.diameter, 3))
-                if keys[i] not in pair_cache:
-                    sub = np.arange(len(kp)) if step <= cfg.keypoints.spacing * 1.05 else \
-                        np.sort(voxel_downsample(kpts, step)[2])
-                    pair_cache[keys[i]] = (sub, scene_pairs(kpts[sub], knrm[sub], klab[sub], m.diameter))
+            def group(pm: PreparedModel) -> list[Hypothesis]:
+                # large models need no denser grid of scene points than diameter / grid_per_diameter
+                step = max(cfg.keypoints.spacing, pm.model.diameter / cfg.grouping.grid_per_diameter)
+                view = scene.keypoints_at(step, min_step=cfg.keypoints.spacing)
+                return self.grouper.group(view, pm, cands[pm.index].rows(view.index),
+                                          np.random.default_rng(seeds[pm.index]))
 
-            def group(i):
-                m = self.library[i]
-                sub, pairs = pair_cache[keys[i]]
-                rng = np.random.default_rng(seeds[i])  # one generator per model: order and threads do not matter
-                if cfg.grouping.method == "hough":
-                    return hough_groups(kpts[sub], scene_lrf[sub], cands[i].model[sub], m.kp_points, m.kp_lrfs,
-                                        self._reference[i], m.diameter, cfg.grouping, i)
-                if cfg.grouping.method == "gc":
-                    return consistency_groups(kpts[sub], cands[i].model[sub], cands[i].distance[sub], m.kp_points,
-                                              m.kp_normals, pairs, m.diameter, cfg.grouping, i)
-                overlap = Overlap(*self.icp_points[i], scene_tree, 0.75 * cfg.grouping.inlier_distance)
-                return ransac_instances(kpts[sub], cands[i].model[sub], m.kp_points, m.kp_normals, pairs,
-                                        m.diameter, cfg.grouping, rng, klab[sub], i, m.points, overlap, knrm[sub])
+            return [h for hs in self._map(group, models) for h in hs]
 
-            for h in self._map(group, models):
-                hyps += h
-        return hyps
-
-    def _select_global(self, scene, scene_tree, order, hyps, regs, vers) -> list[int]:
+    def _select_global(self, scene: Scene, order, hyps, regs, vers) -> list[int]:
         """The subset of ``order`` (indices of accepted hypotheses) that best explains the scene
         (``global_verify``), best verification score first."""
         v = self.config.verify
-        pts = []
-        for j in order:
-            T = regs[j].T_target_source
-            pts.append(self.library[hyps[j].model_index].points @ T[:3, :3].T + T[:3, 3])
+        pts = [transform(regs[j].T_target_source, self.library[hyps[j].model_index].points) for j in order]
         ratio = np.array([vers[j].n_violations / max(vers[j].n_supported, 1) for j in order])
-        terms = candidate_terms(scene.points, scene_tree, pts, ratio, v.explain_radius, v.clutter_radius)
+        terms = candidate_terms(scene.points, scene.tree, pts, ratio, v.explain_radius, v.clutter_radius)
         chosen, _ = select(terms, v.duplicate_weight, v.clutter_weight, v.violation_weight)
         return [order[i] for i in sorted(chosen)]
+
+    def _verify(self, frame: Frame, scene: Scene | None, model_index: int, T_cam_model: np.ndarray,
+                stride: int = 1) -> Verification:
+        cfg = self.config
+        return verify(self.library[model_index], T_cam_model, frame.depth, frame.camera, cfg.verify,
+                      spacing=cfg.preprocess.voxel, plane=None if scene is None else scene.plane, stride=stride)
+
+    def _icp(self, pm: PreparedModel, points, normals, T_init, tree=None) -> RegistrationResult:
+        return icp(pm.icp_points, points, normals, T_init, self.config.refine, source_normals=pm.icp_normals,
+                   target_tree=tree, viewpoint=np.zeros(3))
 
     def detect(self, frame: Frame, targets: dict[int, int] | None = None) -> DetectionResult:
         """Detect objects in ``frame``.
@@ -171,25 +176,17 @@ class Detector:
         """
         cfg = self.config
         tm = _Timer()
-        with tm("preprocess"):
-            scene = preprocess(frame, cfg.preprocess, cfg.seed)
-        stats = {"scene_points": len(scene.points)}
-        with tm("keypoints"):
-            kp = select_keypoints(scene.points, cfg.keypoints)
-        with tm("features"):
-            feats = fpfh(scene.points, scene.normals, kp, cfg.features)
-        stats["scene_keypoints"] = len(kp)
-        models = [i for i, m in enumerate(self.library) if targets is None or m.obj_id in targets]
-        scene_tree = cKDTree(scene.points) if len(scene.points) else None
-        hyps = self._hypotheses(scene, scene_tree, kp, feats, models, tm)
+        scene = self.scene(frame, tm)
+        stats = {"scene_points": len(scene.points), "scene_keypoints": len(scene.keypoints)}
+        models = [pm for pm in self.models if targets is None or pm.model.obj_id in targets]
+        hyps = self._hypotheses(scene, models, tm)
         stats["hypotheses"] = len(hyps)
         if len(hyps) == 0 or len(scene.points) == 0:
             stats["refined"] = stats["detections"] = 0
             return DetectionResult([], tm.t, stats)
         with tm("verify"):
             # cheap first look at the raw poses: only plausible ones are worth an ICP
-            pre = self._map(lambda h: verify(self.library[h.model_index], h.T_cam_model, frame.depth, frame.camera,
-                                             cfg.verify, cfg.preprocess.voxel, scene.plane, stride=2), hyps)
+            pre = self._map(lambda h: self._verify(frame, scene, h.model_index, h.T_scene_model, stride=2), hyps)
         # ICP for the best few raw hypotheses of each model only
         keep = [j for j, v in enumerate(pre) if v.score >= cfg.verify.prefilter and v.n_supported > 0]
         per_model: dict[int, list[int]] = {}
@@ -199,20 +196,19 @@ class Detector:
         hyps = [hyps[j] for j in keep]
         stats["refined"] = len(hyps)
         with tm("refine"):
-            regs = self._map(lambda h: icp(self.icp_points[h.model_index][0], scene.points, scene.normals,
-                                           h.T_cam_model, cfg.refine, self.icp_points[h.model_index][1], scene_tree,
-                                           np.zeros(3)), hyps)
+            regs = self._map(lambda h: self._icp(self.models[h.model_index], scene.points, scene.normals,
+                                                 h.T_scene_model, scene.tree), hyps)
         with tm("verify"):
             vers: list[Verification] = self._map(
-                lambda hr: verify(self.library[hr[0].model_index], hr[1].T_target_source, frame.depth, frame.camera,
-                                  cfg.verify, cfg.preprocess.voxel, scene.plane), list(zip(hyps, regs)))
+                lambda hr: self._verify(frame, scene, hr[0].model_index, hr[1].T_target_source),
+                list(zip(hyps, regs)))
             order = sorted(range(len(hyps)), key=lambda j: (-vers[j].score, j))
             if targets is None:
                 order = [j for j in order if vers[j].accepted(cfg.verify)]
             else:
                 order = [j for j in order if vers[j].n_supported > 0]
             if targets is None and cfg.verify.selection == "global":
-                kept = self._select_global(scene, scene_tree, order, hyps, regs, vers)
+                kept = self._select_global(scene, order, hyps, regs, vers)
             else:
                 kept = resolve_conflicts(order, [v.support for v in vers], cfg.verify.conflict_overlap,
                                          frame.depth.size)
@@ -225,11 +221,41 @@ class Detector:
                         chosen.append(j)
                         left[oid] -= 1
                 kept = chosen
-        dets = []
-        for j in kept:
-            m = self.library[hyps[j].model_index]
-            r, v = regs[j], vers[j]
-            dets.append(Detection(m.name, m.obj_id, v.score, frame.T_input_cam @ r.T_target_source,
-                                  hyps[j].n_inliers, r.fitness, r.rmse_m, v.visible_fraction, hyps[j].group))
+        dets = [self._detection(frame, hyps[j].model_index, regs[j], vers[j], hyps[j].n_inliers, hyps[j].group)
+                for j in kept]
         stats["detections"] = len(dets)
         return DetectionResult(dets, tm.t, stats)
+
+    def _detection(self, frame: Frame, model_index: int, reg: RegistrationResult, ver: Verification,
+                   n_inliers: int, group: int) -> Detection:
+        m = self.library[model_index]
+        return Detection(m.name, m.obj_id, ver.score, frame.T_input_cam @ reg.T_target_source, n_inliers,
+                         reg.fitness, reg.rmse_m, ver.visible_fraction, group)
+
+    def refine(self, frame: Frame, model_index: int, T_cam_model: np.ndarray, *, depth_margin: float = 0.03,
+               pixel_margin: int = 8, min_points: int = 50) -> Refinement:
+        """Refine a predicted pose of one model in ``frame`` and verify it (tracking between full detections).
+
+        Only the measured depth around the prediction takes part: pixels in the model's projected box (grown
+        by ``pixel_margin``) whose depth lies within ``depth_margin`` m of the model's depth range. They are
+        gridded and given normals as a scene is, ICP moves the model's samples from ``T_cam_model`` (camera
+        frame, 4 x 4), and the result is checked against the depth (every second row and column).
+        ``min_points``: fewer such pixels and there is nothing to refine on.
+        """
+        cfg, cam, depth = self.config, frame.camera, frame.depth
+        P = transform(T_cam_model, self.library[model_index].points)
+        if np.any(P[:, 2] <= 0.05):
+            return Refinement(False)
+        pix = bbox_pixels(cam, P, margin=pixel_margin)
+        if pix is None or len(pix) < 25:
+            return Refinement(False)
+        z = depth.reshape(-1)[pix]
+        keep = (z > P[:, 2].min() - depth_margin) & (z < P[:, 2].max() + depth_margin)
+        if keep.sum() < min_points:
+            return Refinement(True)
+        S, _, _ = voxel_downsample(cam.backproject_pixels(pix[keep], z[keep]), cfg.preprocess.voxel,
+                                   representatives=False)
+        N = estimate_normals(S, cfg.preprocess.normal_radius, cfg.preprocess.normal_max_nn)
+        reg = self._icp(self.models[model_index], S, N, T_cam_model)
+        ver = self._verify(frame, None, model_index, reg.T_target_source, stride=2)
+        return Refinement(True, self._detection(frame, model_index, reg, ver, reg.n_inliers, 0))

@@ -12,3 +12,11 @@ class InputError(ValueError):
         self.path = None if path is None else str(path)
         self.problem = problem
         super().__init__(f"{self.path}: {problem}" if self.path else problem)
+
+
+class ConfigError(InputError):
+    """A parameter outside its range or of the wrong type (pipeline files, options)."""
+
+
+class DependencyError(RuntimeError):
+    """An optional dependency that a chosen feature needs is not installed (the message says how to get it)."""

@@ -1,9 +1,29 @@
 """FPFH descriptors at keypoints, with neighbours taken from the full (dense) cloud."""
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from .config import FeatureConfig
+from .errors import ConfigError
+from .params import check_positive, param
+
+
+@dataclass(frozen=True)
+class FeatureConfig:
+    radius: float = param(0.025, "m; FPFH support radius")
+    max_nn: int = param(100, "most neighbours in an FPFH")
+    lrf_radius: float = param(0.0, "m; SHOT local reference frame support (Hough grouping); 0: features.radius")
+
+    def __post_init__(self):
+        check_positive(self, "radius", "max_nn")
+        if self.lrf_radius < 0:
+            raise ConfigError(f"FeatureConfig.lrf_radius must be >= 0, got {self.lrf_radius}")
+
+    @property
+    def lrf_support(self) -> float:
+        """m; the radius local reference frames use: ``lrf_radius``, or ``radius`` when that is 0."""
+        return self.lrf_radius or self.radius
 
 
 def fpfh(points: np.ndarray, normals: np.ndarray, keypoints: np.ndarray, cfg: FeatureConfig) -> np.ndarray:

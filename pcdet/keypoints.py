@@ -1,11 +1,27 @@
 """Keypoint selection: one real sample per voxel of side ``spacing`` (default), or ISS."""
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
 
 from .cloud import voxel_downsample
-from .config import KeypointConfig
+from .errors import ConfigError
+from .params import check_positive, param
+
+
+@dataclass(frozen=True)
+class KeypointConfig:
+    method: str = param("voxel", "'voxel' (one sample per cell of `spacing`) or 'iss'")
+    spacing: float = param(0.008, "m; keypoint spacing for the voxel method")
+    iss_salient_radius: float = param(0.012, "m; ISS salient radius")
+    iss_non_max_radius: float = param(0.008, "m; ISS non-maximum suppression radius")
+
+    def __post_init__(self):
+        if self.method not in ("voxel", "iss"):
+            raise ConfigError(f"KeypointConfig.method must be 'voxel' or 'iss', got {self.method!r}")
+        check_positive(self, "spacing", "iss_salient_radius", "iss_non_max_radius")
 
 
 def select_keypoints(points: np.ndarray, cfg: KeypointConfig) -> np.ndarray:

@@ -23,7 +23,7 @@ def shot_lrf(points: np.ndarray, keypoints: np.ndarray, radius: float, tree: cKD
     Returns
     -------
     frames : (K, 3, 3) float64, rows x, y, z of each frame (a proper rotation: ``frames[k] @ v`` expresses a
-        world vector v in keypoint k's frame).
+        world vector v in keypoint k's frame); all NaN where the frame is not valid.
     valid : (K,) bool, False where fewer than ``min_neighbours`` points support the frame.
     """
     tree = tree if tree is not None else cKDTree(points)
@@ -59,4 +59,5 @@ def shot_lrf(points: np.ndarray, keypoints: np.ndarray, radius: float, tree: cKD
         axis[plus < minus] *= -1
     y = np.cross(z, x)
     frames[valid] = np.stack([x, y, z], axis=1)
+    frames[~valid] = np.nan
     return frames, valid

@@ -6,7 +6,20 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .config import MatchingConfig
+from .errors import ConfigError
+from .params import check_positive, param
+
+
+@dataclass(frozen=True)
+class MatchingConfig:
+    k: int = param(4, "candidate model keypoints kept per scene keypoint (nearest in FPFH space)")
+    ratio: float = param(1.0, "Lowe ratio test on the nearest two (1.0: off, keep k)")
+    mutual: bool = param(False, "keep only mutual nearest neighbours")
+
+    def __post_init__(self):
+        check_positive(self, "k")
+        if not 0 < self.ratio <= 1:
+            raise ConfigError(f"MatchingConfig.ratio must be in (0, 1] (1 disables the test), got {self.ratio}")
 
 
 @dataclass
@@ -28,8 +41,12 @@ class Candidates:
     def __len__(self) -> int:
         return int((self.model >= 0).sum())
 
+    def rows(self, index: np.ndarray) -> "Candidates":
+        """The candidates of the scene keypoints ``index`` only (a ``SceneKeypoints`` view's ``index``)."""
+        return Candidates(self.model[index], self.distance[index])
 
-def match_features(scene_features: np.ndarray, model_features: np.ndarray, cfg: MatchingConfig,
+
+def match_features(scene_features: np.ndarray, model_features: np.ndarray, cfg: MatchingConfig, *,
                    model_tree: cKDTree | None = None, workers: int = 1) -> Candidates:
     """Each scene descriptor (S, 33) keeps its ``cfg.k`` nearest model descriptors (D, 33).
 

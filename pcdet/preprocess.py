@@ -5,10 +5,35 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .cloud import Plane, estimate_normals, euclidean_clusters, segment_plane, voxel_downsample
-from .config import PreprocessConfig
-from .errors import InputError
+from .cloud import (
+    Plane,
+    estimate_normals,
+    euclidean_clusters,
+    segment_plane,
+    voxel_downsample,
+)
+from .errors import ConfigError, InputError
 from .frame import Frame
+from .params import check_positive, param
+
+
+@dataclass(frozen=True)
+class PreprocessConfig:
+    min_depth: float = param(0.1, "m; scene points nearer than this are dropped")
+    max_depth: float = param(2.5, "m; scene points farther than this are dropped")
+    voxel: float = param(0.004, "m; voxel grid of the scene and of model samples")
+    normal_radius: float = param(0.01, "m; neighbourhood for normals (scene, model views)")
+    normal_max_nn: int = param(30, "most neighbours used for a normal")
+    remove_plane: bool = param(True, "remove the dominant plane (table, floor) and what lies beyond it")
+    plane_distance: float = param(0.008, "m; points this close to the plane belong to it")
+    plane_iterations: int = param(300, "RANSAC draws for the plane")
+    cluster_tolerance: float = param(0.012, "m; points closer than this join one Euclidean cluster")
+    min_cluster_points: int = param(40, "clusters with fewer points are dropped as clutter")
+
+    def __post_init__(self):
+        check_positive(self, "voxel", "normal_radius", "normal_max_nn", "plane_distance", "cluster_tolerance")
+        if not 0 <= self.min_depth < self.max_depth:
+            raise ConfigError(f"need 0 <= min_depth < max_depth, got {self.min_depth}, {self.max_depth}")
 
 
 @dataclass

@@ -7,7 +7,19 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from .config import RefineConfig
+from .align import transform
+from .params import check_positive, param
+
+
+@dataclass(frozen=True)
+class RefineConfig:
+    iterations: int = param(30, "ICP iterations at most")
+    max_distance: float = param(0.012, "m; ICP correspondence distance")
+    kernel: float = param(0.006, "m; Tukey kernel width of the point-to-plane residual")
+    max_per_model: int = param(3, "raw hypotheses per model refined by ICP (best first look first)")
+
+    def __post_init__(self):
+        check_positive(self, "iterations", "max_distance", "kernel", "max_per_model")
 
 
 @dataclass
@@ -24,7 +36,7 @@ class RegistrationResult:
 
 
 def icp(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_init: np.ndarray,
-        cfg: RefineConfig, source_normals: np.ndarray | None = None, target_tree: cKDTree | None = None,
+        cfg: RefineConfig, *, source_normals: np.ndarray | None = None, target_tree: cKDTree | None = None,
         viewpoint: np.ndarray | None = None) -> RegistrationResult:
     """Point-to-plane ICP of ``source`` (N, 3) onto ``target`` (M, 3) with ``target_normals`` (M, 3).
 
@@ -36,7 +48,7 @@ def icp(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_in
     converged = False
     it = 0
     for it in range(1, cfg.iterations + 1):
-        p, q, n, w, _ = _pairs(source, source_normals, target, target_normals, tree, T, cfg, viewpoint)
+        p, q, n, w, _ = _pairs(source, source_normals, target, target_normals, tree, T, cfg=cfg, viewpoint=viewpoint)
         if len(p) < 6:
             break
         r = ((p - q) * n).sum(axis=1)
@@ -54,14 +66,14 @@ def icp(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_in
         if np.linalg.norm(x[:3]) < 1e-5 and np.linalg.norm(x[3:]) < 1e-6:
             converged = True
             break
-    p, q, n, w, n_src = _pairs(source, source_normals, target, target_normals, tree, T, cfg, viewpoint)
+    p, q, n, w, n_src = _pairs(source, source_normals, target, target_normals, tree, T, cfg=cfg, viewpoint=viewpoint)
     r = ((p - q) * n).sum(axis=1)
     rmse = float(np.sqrt((r ** 2).mean())) if len(r) else float("inf")
     return RegistrationResult(T, len(p) / max(n_src, 1), rmse, len(p), it, converged)
 
 
-def _pairs(source, source_normals, target, target_normals, tree, T, cfg, viewpoint):
-    p = source @ T[:3, :3].T + T[:3, 3]
+def _pairs(source, source_normals, target, target_normals, tree, T, *, cfg, viewpoint):
+    p = transform(T, source)
     if source_normals is not None and viewpoint is not None:
         ns = source_normals @ T[:3, :3].T
         front = ((viewpoint - p) * ns).sum(axis=1) > 0

@@ -5,25 +5,25 @@ Both may be meshes or point clouds (any format ``load_model`` reads); units are 
 """
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .cloud import voxel_downsample
+from .cloud import diameter as cloud_diameter
+from .cloud import outward_normals, voxel_downsample
 from .config import PipelineConfig, RefineConfig
 from .errors import InputError
 from .features import fpfh
-from .grouping.consistency import consistency_groups
-from .grouping.hough import hough_groups
-from .grouping.pairs import scene_pairs
-from .grouping.ransac import ransac_instances
+from .grouping import GROUPERS, make_grouper
+from .io.models import Geometry, load_geometry
 from .keypoints import select_keypoints
 from .lrf import shot_lrf
 from .matching import match_features
-from .model import Geometry, _diameter, _outward_normals, load_geometry
+from .model import ObjectModel
+from .prepared_model import PreparedModel
 from .refine import RegistrationResult, icp
+from .scene import SceneKeypoints
 
 
 @dataclass(frozen=True)
@@ -54,64 +54,60 @@ class Registration:
 def _prepared(points: np.ndarray, normals: np.ndarray | None, voxel: float):
     p, n, _ = voxel_downsample(points, voxel, normals)
     if n is None or not (np.linalg.norm(n, axis=1) > 0.5).all():
-        n = _outward_normals(p, 2.5 * voxel, 30)
+        n = outward_normals(p, 2.5 * voxel, 30)
     return p, n
 
 
-def register(source, target, config: RegisterConfig | None = None, units="auto") -> Registration:
+def register(source, target, config: RegisterConfig | None = None, *, units="auto") -> Registration:
     """Align ``source`` to ``target`` (model or cloud file paths) globally, then refine by ICP."""
     import time
 
     cfg = config or RegisterConfig()
+    if cfg.grouping not in GROUPERS:
+        raise InputError(f"grouping {cfg.grouping!r} is not available; use one of {', '.join(map(repr, GROUPERS))}")
     t0 = time.perf_counter()
     src, tgt = load_geometry(source, units), load_geometry(target, units)
     s_pts, s_nrm = _surface(src)
     t_pts, t_nrm = _surface(tgt)
-    diameter = _diameter(s_pts)
+    diameter = cloud_diameter(s_pts)
     voxel = cfg.voxel or diameter / 40.0
     sp, sn = _prepared(s_pts, s_nrm, voxel)
     tp, tn = _prepared(t_pts, t_nrm, voxel)
     if len(sp) < 10 or len(tp) < 10:
         raise InputError(f"too few points after sampling at {voxel:.4f} m (source {len(sp)}, target {len(tp)})")
+    # RANSAC without overlap re-ranking and without the flat-triplet test: one instance, of a whole scan
     pc = PipelineConfig().replace(
         keypoints={"spacing": 2 * voxel},
         features={"radius": 5 * voxel},
         matching={"k": cfg.k},
-        grouping={"iterations": cfg.iterations, "inlier_distance": 2.5 * voxel, "edge_tolerance": 1.5 * voxel,
-                  "min_inliers": 5, "max_instances": 1, "alternatives": cfg.alternatives},
+        grouping={"method": cfg.grouping, "inlier_distance": 2.5 * voxel, "min_inliers": 5,
+                  "ransac": {"iterations": cfg.iterations, "edge_tolerance": 1.5 * voxel, "max_instances": 1,
+                             "alternatives": cfg.alternatives, "rescore": 0, "min_normal_spread_deg": 0.0},
+                  "gc": {"edge_tolerance": 1.5 * voxel},
+                  "hough": {"bin": 10 * voxel, "rotation_tol_deg": 35.0}},
     )
     t1 = time.perf_counter()
     skp = select_keypoints(sp, pc.keypoints)
     tkp = select_keypoints(tp, pc.keypoints)
     sf = fpfh(sp, sn, skp, pc.features)
     tf = fpfh(tp, tn, tkp, pc.features)
-    cand = match_features(tf, sf, pc.matching)  # target keypoints look up source descriptors
-    pairs = scene_pairs(tp[tkp], tn[tkp], np.zeros(len(tkp), np.int64), diameter)
-    if cfg.grouping == "gc":
-        hyps = consistency_groups(tp[tkp], cand.model, cand.distance, sp[skp], sn[skp], pairs, diameter,
-                                  pc.grouping)
-    elif cfg.grouping == "ransac":
-        hyps = ransac_instances(tp[tkp], cand.model, sp[skp], sn[skp], pairs, diameter, pc.grouping,
-                                np.random.default_rng(cfg.seed))
-    elif cfg.grouping == "hough":
-        frames = []
-        for pts, kp in ((tp, tkp), (sp, skp)):
-            F, ok = shot_lrf(pts, pts[kp], pc.features.radius)
-            F[~ok] = np.nan
-            frames.append(F)
-        gcfg = dataclasses.replace(pc.grouping, hough_bin=10 * voxel, hough_rotation_tol_deg=35.0)
-        hyps = hough_groups(tp[tkp], frames[0], cand.model, sp[skp], frames[1], sp.mean(axis=0), diameter, gcfg)
-    else:
-        raise InputError(f"grouping {cfg.grouping!r} is not available; use 'ransac', 'gc' or 'hough'")
+    grouper = make_grouper(pc.grouping)
+    lrf = (lambda pts, kp: shot_lrf(pts, pts[kp], pc.features.radius)[0]) if grouper.needs_lrfs else None
+    model = ObjectModel("source", 0, str(source), sp, sn, sp[skp], sn[skp], sf,
+                        lrf(sp, skp) if lrf else np.full((len(skp), 3, 3), np.nan), diameter)
+    tree = cKDTree(tp)
+    scene = SceneKeypoints(tp[tkp], tn[tkp], lrfs=lrf(tp, tkp) if lrf else None, cloud_tree=tree)
+    prepared = PreparedModel(model, 0, sp, sn, sp.mean(axis=0), cKDTree(sf))
+    cand = match_features(tf, sf, pc.matching, model_tree=prepared.descriptor_tree)  # target looks up source
+    hyps = grouper.group(scene, prepared, cand, np.random.default_rng(cfg.seed))
     t2 = time.perf_counter()
     if not hyps:
         raise InputError("no consistent alignment found: do the inputs overlap, and are they in the same units?")
-    tree = cKDTree(tp)
     rc = RefineConfig(iterations=cfg.icp_iterations, max_distance=3 * voxel, kernel=1.5 * voxel)
     best: RegistrationResult | None = None
     best_h = None
-    for h in hyps:
-        r = icp(sp, tp, tn, h.T_cam_model, rc, target_tree=tree)
+    for h in hyps:  # each hypothesis's T_scene_model is a T_target_source
+        r = icp(sp, tp, tn, h.T_scene_model, rc, target_tree=tree)
         if best is None or (r.fitness, -r.rmse_m) > (best.fitness, -best.rmse_m):
             best, best_h = r, h
     # final polish at a tighter distance

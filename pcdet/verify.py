@@ -16,11 +16,43 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .align import transform
 from .camera import Camera
 from .cloud import Plane
-from .config import VerifyConfig
+from .errors import ConfigError
 from .model import ObjectModel
+from .params import check_positive, check_range, param
 from .render import mesh_depth_at, render_meshes, render_points
+
+
+@dataclass(frozen=True)
+class VerifyConfig:
+    depth_tolerance: float = param(0.008, "m; rendered vs measured depth agreement")
+    min_score: float = param(0.35, "acceptance threshold on the verification score")
+    min_supported: int = param(40, "pixels that must agree with the model")
+    max_violation: float = param(0.25, "share of see-through pixels allowed")
+    conflict_overlap: float = param(0.3, "share of a detection's pixels that may be claimed by a better one")
+    prefilter: float = param(0.15, "score a raw hypothesis needs before ICP")
+    max_penetration: float = param(0.05, "share of model samples allowed below the supporting plane")
+    selection: str = param("global", "threshold: all accepted, greedy conflicts; global: the accepted subset "
+                                     "that best explains the scene")
+    explain_radius: float = param(0.006, "m; global: a scene point within this of a model sample is explained "
+                                         "by it")
+    clutter_radius: float = param(0.015, "m; global: unexplained scene points this close to explained ones are "
+                                         "clutter")
+    duplicate_weight: float = param(1.0, "global: cost of each scene point explained twice")
+    clutter_weight: float = param(5.0, "global: cost of each clutter point no chosen detection explains")
+    violation_weight: float = param(1.0, "global: cost of see-through evidence (in scene points)")
+
+    def __post_init__(self):
+        check_positive(self, "depth_tolerance", "min_supported", "explain_radius", "clutter_radius")
+        for n in ("min_score", "max_violation", "conflict_overlap", "prefilter", "max_penetration"):
+            check_range(self, n, 0, 1)
+        if self.selection not in ("threshold", "global"):
+            raise ConfigError(f"VerifyConfig.selection must be 'threshold' or 'global', got {self.selection!r}")
+        for n in ("duplicate_weight", "clutter_weight", "violation_weight"):
+            if getattr(self, n) < 0:
+                raise ConfigError(f"VerifyConfig.{n} must be >= 0, got {getattr(self, n)}")
 
 
 @dataclass
@@ -64,11 +96,11 @@ def bbox_pixels(camera: Camera, pts_cam: np.ndarray, stride: int = 1, margin: in
     return (vv * camera.width + uu).reshape(-1)
 
 
-def render_model(model: ObjectModel, T_cam_model: np.ndarray, camera: Camera, spacing: float,
+def render_model(model: ObjectModel, T_cam_model: np.ndarray, camera: Camera, *, spacing: float = 0.004,
                  stride: int = 1) -> np.ndarray:
     """(H, W) float32 depth (m) of the model alone at ``T_cam_model``; 0 off the model (and, for meshes with
-    ``stride`` > 1, off every stride-th row and column)."""
-    pts = model.points @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+    ``stride`` > 1, off every stride-th row and column). Point models are splatted at ``spacing`` m."""
+    pts = transform(T_cam_model, model.points)
     if model.is_mesh:
         pix = bbox_pixels(camera, pts, stride)
         if pix is None:
@@ -77,12 +109,12 @@ def render_model(model: ObjectModel, T_cam_model: np.ndarray, camera: Camera, sp
     return render_points(camera, pts, spacing)
 
 
-def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camera: Camera, cfg: VerifyConfig,
+def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camera: Camera, cfg: VerifyConfig, *,
            spacing: float = 0.004, plane: Plane | None = None, stride: int = 1) -> Verification:
     """Compare ``model`` rendered at ``T_cam_model`` with measured ``depth`` (H, W) float32 metres; with the
     scene's supporting ``plane``, also measure how much of the model would sink into it. ``stride`` > 1 looks
     at every stride-th row and column only (a quick first look; pixel counts shrink by stride^2)."""
-    P = model.points @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+    P = transform(T_cam_model, model.points)
     if model.is_mesh:
         # cast only the rays of the model's bounding box
         box = bbox_pixels(camera, P, stride)
@@ -92,7 +124,7 @@ def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camer
         hit = rv > 0
         pix, rv = box[hit], rv[hit]
     else:
-        r = render_model(model, T_cam_model, camera, spacing, stride).reshape(-1)
+        r = render_model(model, T_cam_model, camera, spacing=spacing, stride=stride).reshape(-1)
         pix = np.flatnonzero(r > 0)
         rv = r[pix]
     dv = depth.reshape(-1)[pix]

@@ -4,7 +4,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from pcdet.model import ModelLibrary
+from pcdet.library import ModelLibrary
 
 folder = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parent.parent / "models"
 with tempfile.TemporaryDirectory() as cache:

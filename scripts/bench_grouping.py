@@ -15,45 +15,45 @@ Run: python scripts/bench_grouping.py [--trials 30] [--n 1000]
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from pcdet.config import GroupingConfig
-from pcdet.grouping.consistency import consistency_groups
-from pcdet.grouping.hough import hough_groups
-from pcdet.grouping.pairs import scene_pairs
-from pcdet.grouping.ransac import ransac_instances
+from pcdet.config import PipelineConfig
+from pcdet.grouping import make_grouper
 from pcdet.io.clouds import read_cloud
+from pcdet.library import ModelLibrary
+from pcdet.matching import Candidates
 from pcdet.metrics import rotation_error_deg
-from pcdet.model import ModelLibrary
+from pcdet.model import ObjectModel
+from pcdet.prepared_model import PreparedModel
+from pcdet.scene import SceneKeypoints
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def run(method, S, N, cand, dist, mp, mn, diameter, cfg, seed, lrf=None, model_lrf=None, ref=None):
-    if method == "hough":
-        return hough_groups(S, lrf, cand, mp, model_lrf, ref, diameter, cfg)
-    pairs = scene_pairs(S, N, np.zeros(len(S), np.int64), diameter)
-    if method == "gc":
-        return consistency_groups(S, cand, dist, mp, mn, pairs, diameter, cfg)
-    return ransac_instances(S, cand, mp, mn, pairs, diameter, cfg, np.random.default_rng(seed))
+def run(method, S, N, cand, dist, model, cfg, seed, lrf=None):
+    """One call of the registered grouper ``method`` on scene keypoints S, N (n, 3) with their candidates."""
+    grouper = make_grouper(dataclasses.replace(cfg, method=method))
+    return grouper.group(SceneKeypoints(S, N, lrfs=lrf), model, Candidates(cand, dist), np.random.default_rng(seed))
 
 
 def ok(hyps, T):
     if not hyps:
         return False
-    E = hyps[0].T_cam_model
+    E = hyps[0].T_scene_model
     return rotation_error_deg(E[:3, :3], T[:3, :3]) < 2 and np.linalg.norm(E[:3, 3] - T[:3, 3]) < 0.01
 
 
 def synthetic(trials, methods, n=1000, lrf_noise_deg=5.0):
     m = ModelLibrary.from_folder(ROOT / "models")[0]
-    cfg = GroupingConfig()
+    pm = PreparedModel.build(m, 0, icp_spacing=0.008)
+    cfg = PipelineConfig().grouping
     good = np.flatnonzero(~np.isnan(m.kp_lrfs[:, 0, 0]))
-    ref = m.points.mean(axis=0)
     print(f"\n{n} correspondences per trial, {trials} trials, 1 mm point noise, scene LRFs turned by "
           f"{lrf_noise_deg:g} deg (standard deviation)")
     print("| outliers | " + " | ".join(f"{x} success | {x} median ms" for x in methods) + " |")
@@ -80,8 +80,7 @@ def synthetic(trials, methods, n=1000, lrf_noise_deg=5.0):
             dist = rng.random((n, 1))  # descriptor distance carries no information here
             for x in methods:
                 t0 = time.perf_counter()
-                h = run(x, S, N, cand[:, None], dist, m.kp_points, m.kp_normals, m.diameter, cfg, t, F, m.kp_lrfs,
-                        ref)
+                h = run(x, S, N, cand[:, None], dist, pm, cfg, t, F)
                 res[x][1].append(time.perf_counter() - t0)
                 res[x][0] += ok(h, T)
         print(f"| {share:.0%} | " + " | ".join(f"{res[x][0] / trials:.2f} | {np.median(res[x][1]) * 1000:.0f}"
@@ -106,14 +105,19 @@ def teaser(methods):
         inl = np.linalg.norm(S - (src @ R.T + T[:3, 3]), axis=1) < 0.05
         diam = float(np.ptp(src, axis=0).max() * 1.8)
         zeros = np.zeros_like(src)
-        cfg = GroupingConfig(inlier_distance=0.05, edge_tolerance=0.05, min_inliers=3, iterations=5000,
-                             normal_tolerance_deg=180)
+        loose = {"edge_tolerance": 0.05, "normal_tolerance_deg": 180.0}  # no normals: lengths only
+        cfg = PipelineConfig().replace(grouping={"inlier_distance": 0.05, "min_inliers": 3,
+                                                 "ransac": {**loose, "iterations": 5000}, "gc": loose}).grouping
+        nan = np.full((len(src), 3, 3), np.nan)
+        model = ObjectModel(d.name, 0, str(d), src, zeros, src, zeros, np.zeros((len(src), 33), np.float32), nan,
+                            diam)
+        pm = PreparedModel(model, 0, src, zeros, src.mean(axis=0), cKDTree(model.features))
         cells = []
         for x in methods:
             t0 = time.perf_counter()
-            h = run(x, S, zeros, np.arange(len(src))[:, None], np.zeros((len(src), 1)), src, zeros, diam, cfg, 0)
+            h = run(x, S, zeros, np.arange(len(src))[:, None], np.zeros((len(src), 1)), pm, cfg, 0)
             dt = time.perf_counter() - t0
-            err = rotation_error_deg(h[0].T_cam_model[:3, :3], R) if h else float("nan")
+            err = rotation_error_deg(h[0].T_scene_model[:3, :3], R) if h else float("nan")
             cells.append(f"{err:.2f} | {dt * 1000:.0f}")
         print(f"| {d.name} ({len(src)} pairs) | {1 - inl.mean():.0%} | " + " | ".join(cells) + " |")
 

@@ -15,10 +15,15 @@ from pathlib import Path
 import numpy as np
 
 from pcdet.datasets import open_recording
-from pcdet.model import ModelLibrary
+from pcdet.library import ModelLibrary
 from pcdet.odometry import OdometryConfig, odometry
 from pcdet.synth import SynthConfig, synthesize
-from pcdet.trajectory import ate_rmse, constant_velocity_baseline, identity_baseline, rpe
+from pcdet.trajectory import (
+    ate_rmse,
+    constant_velocity_baseline,
+    identity_baseline,
+    rpe,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -28,7 +28,7 @@ from pcdet.config import load_pipeline
 from pcdet.datasets.bop import BopDataset
 from pcdet.detector import Detector
 from pcdet.evaluate import evaluate
-from pcdet.model import ModelLibrary
+from pcdet.library import ModelLibrary
 from pcdet.synth import SynthConfig, synthesize
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -14,8 +14,8 @@ from pathlib import Path
 
 from pcdet.config import PipelineConfig
 from pcdet.datasets import open_recording
-from pcdet.model import ModelLibrary
-from pcdet.runner import run_recording
+from pcdet.library import ModelLibrary
+from pcdet.runner import RunOptions, run_recording
 from pcdet.synth import SynthConfig, synthesize
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -40,7 +40,7 @@ def main():
         for name, w, ex in runs:
             out = Path(tmp) / name.replace(" ", "_").replace(",", "")
             t0 = time.perf_counter()
-            run_recording(rec, lib, PipelineConfig(), out, workers=w, executor=ex)
+            run_recording(rec, lib, PipelineConfig(), out, RunOptions(workers=w, executor=ex))
             dt = time.perf_counter() - t0
             csv = (out / "results.csv").read_bytes()
             ref = ref or csv

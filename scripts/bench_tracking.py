@@ -13,7 +13,7 @@ import numpy as np
 
 from pcdet.datasets import open_recording
 from pcdet.detector import Detector
-from pcdet.model import ModelLibrary
+from pcdet.library import ModelLibrary
 from pcdet.synth import SynthConfig, synthesize
 from pcdet.tracking import Tracker, TrackingConfig
 

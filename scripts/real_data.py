@@ -14,8 +14,9 @@ from scipy.spatial.transform import Rotation
 from pcdet.datasets.bop import BopDataset
 from pcdet.detector import Detector
 from pcdet.frame import Frame
+from pcdet.io.models import load_geometry
+from pcdet.library import ModelLibrary
 from pcdet.metrics import add, adds, rotation_error_deg
-from pcdet.model import ModelLibrary, load_geometry
 from pcdet.register import register
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"

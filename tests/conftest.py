@@ -35,7 +35,7 @@ def shared(name: str) -> Path:
 
 @pytest.fixture(scope="session")
 def library():
-    from pcdet.model import ModelLibrary
+    from pcdet.library import ModelLibrary
 
     return ModelLibrary.from_folder(MODELS)
 

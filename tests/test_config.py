@@ -1,23 +1,34 @@
 """Pipeline presets: default.toml sets every parameter to the code's defaults; bad files fail clearly."""
-import dataclasses
 
 import pytest
 
-from pcdet.config import PIPELINES_DIR, PipelineConfig, dump_toml, load_pipeline
+from pcdet.config import (
+    PIPELINES_DIR,
+    PipelineConfig,
+    dump_toml,
+    field_docs,
+    load_pipeline,
+)
 from pcdet.errors import InputError
 
 
 def test_default_preset_equals_code_defaults():
+    """default.toml loads to the code's defaults and spells out every field, in its own section."""
+    import tomllib
+
     assert load_pipeline("default") == PipelineConfig()
-    text = (PIPELINES_DIR / "default.toml").read_text()
-    for f in dataclasses.fields(PipelineConfig):
-        if f.name != "seed":
-            for k in dataclasses.asdict(getattr(PipelineConfig(), f.name)):
-                assert f"\n{k} = " in text, f"{f.name}.{k} missing from default.toml"
+    doc = tomllib.loads((PIPELINES_DIR / "default.toml").read_text())
+    for name in field_docs():
+        table = doc
+        for part in name.split(".")[:-1]:
+            table = table[part]
+        assert name.split(".")[-1] in table, f"{name} missing from default.toml"
+    assert all(field_docs().values()), "every field has its one-line documentation"
 
 
 def test_dump_roundtrip(tmp_path):
-    cfg = PipelineConfig().replace(seed=7, grouping={"iterations": 123})
+    cfg = PipelineConfig().replace(seed=7, grouping={"method": "hough", "ransac": {"iterations": 123},
+                                                     "hough": {"bin": 0.02}})
     p = tmp_path / "p.toml"
     p.write_text(dump_toml(cfg))
     assert load_pipeline(p) == cfg
@@ -28,6 +39,15 @@ def test_dump_roundtrip(tmp_path):
     ("[nope]\n", "unknown pipeline section 'nope'"),
     ("[preprocess]\nvoxel = -1\n", "voxel must be > 0"),
     ("[grouping\n", "not valid TOML"),
+    ("[grouping.hough]\nbin = 0\n", "[grouping.hough]: HoughConfig.bin must be > 0"),
+    ("[grouping]\nhough_bin = 0.02\n", "grouping.hough_bin is now grouping.hough.bin"),
+    ("[grouping]\niterations = 100\n", "grouping.iterations is now grouping.ransac.iterations"),
+    ("[grouping]\nmethod = \"magic\"\n", "grouping method 'magic' is not available"),
+    ("[grouping.ransac]\niterations = 10.5\n", "grouping.ransac.iterations = 10.5: expected an integer"),
+    ("[preprocess]\nremove_plane = \"no\"\n", "preprocess.remove_plane = 'no': expected a boolean"),
+    ("seed = \"x\"\n", "seed = 'x': expected an integer"),
+    ("[verify]\nmin_score = true\n", "verify.min_score = True: expected a number"),
+    ("grouping = 3\n", "[grouping] must be a table"),
 ])
 def test_bad_presets(tmp_path, text, words):
     p = tmp_path / "bad.toml"
@@ -45,15 +65,19 @@ def test_unknown_preset_lists_available():
 @pytest.mark.parametrize("path", sorted(PIPELINES_DIR.glob("*.toml")), ids=lambda p: p.stem)
 def test_every_shipped_preset_loads_and_differs_only_where_it_says(path):
     """Each preset in pipelines/ loads; a non-default preset changes at least one field, and every field it
-    sets in its file ends up in the config."""
+    sets in its file (sub-tables included) ends up in the config."""
     import tomllib
 
     cfg = load_pipeline(path.stem)
-    text = tomllib.loads(path.read_text())
-    for section, values in text.items():
-        if isinstance(values, dict):
-            for k, v in values.items():
-                assert getattr(getattr(cfg, section), k) == v, (section, k)
+
+    def check(obj, table, where):
+        for k, v in table.items():
+            if isinstance(v, dict):
+                check(getattr(obj, k), v, f"{where}.{k}")
+            else:
+                assert getattr(obj, k) == v, (where, k)
+
+    check(cfg, tomllib.loads(path.read_text()), path.stem)
     if path.stem not in ("default", "ransac"):
         assert cfg != PipelineConfig()
 

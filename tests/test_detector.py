@@ -8,8 +8,8 @@ from pcdet.config import PipelineConfig, load_pipeline
 from pcdet.datasets.bop import BopDataset
 from pcdet.detector import Detector
 from pcdet.frame import Frame
+from pcdet.library import ModelLibrary
 from pcdet.metrics import adds, rotation_error_deg
-from pcdet.model import ModelLibrary
 
 from .conftest import shared
 

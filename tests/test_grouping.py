@@ -1,13 +1,28 @@
-"""RANSAC grouping recovers a known pose from correspondences with many outliers, deterministically."""
+"""The groupers, through their one protocol, recover a known pose from correspondences with many outliers,
+deterministically; the registry and the config sections match."""
+import dataclasses
+
 import numpy as np
 import pytest
 
-from pcdet.config import GroupingConfig
-from pcdet.grouping.pairs import pair_features, scene_pairs
-from pcdet.grouping.ransac import ransac_instances
+from pcdet.config import GroupingConfig, PipelineConfig
+from pcdet.grouping import GROUPERS, make_grouper
+from pcdet.matching import Candidates
 from pcdet.metrics import rotation_error_deg
+from pcdet.pairs import pair_features
+from pcdet.prepared_model import PreparedModel
+from pcdet.scene import SceneKeypoints
 
 from .conftest import random_pose
+
+
+def _group(method, model, S, N, cand, rng=None, dist=None, lrfs=None):
+    """One grouper call on arrays: scene keypoints S, N (n, 3), candidates (n, k)."""
+    grouper = make_grouper(GroupingConfig(method=method))
+    pm = PreparedModel.build(model, 0, icp_spacing=0.008)
+    dist = np.zeros(cand.shape) if dist is None else dist
+    return grouper.group(SceneKeypoints(S, N, lrfs=lrfs), pm, Candidates(cand, dist),
+                         rng if rng is not None else np.random.default_rng(0))
 
 
 def _problem(model, rng, n=300, outlier_share=0.9, noise=0.001):
@@ -30,10 +45,9 @@ def test_recovers_pose(library, rng, outliers):
     ok = 0
     for _ in range(10):
         T, S, N, cand, _ = _problem(m, rng, outlier_share=outliers)
-        pairs = scene_pairs(S, N, np.zeros(len(S), int), m.diameter)
-        hyps = ransac_instances(S, cand, m.kp_points, m.kp_normals, pairs, m.diameter, GroupingConfig(), rng)
+        hyps = _group("ransac", m, S, N, cand, rng)
         if hyps:
-            E = hyps[0].T_cam_model
+            E = hyps[0].T_scene_model
             ok += rotation_error_deg(E[:3, :3], T[:3, :3]) < 2 and np.linalg.norm(E[:3, 3] - T[:3, 3]) < 0.01
     assert ok >= 9, f"{ok}/10 trials within 2 degrees and 1 cm at {outliers:.0%} outliers"
 
@@ -41,14 +55,11 @@ def test_recovers_pose(library, rng, outliers):
 def test_deterministic(library):
     m = library[1]
     T, S, N, cand, _ = _problem(m, np.random.default_rng(5))
-    pairs = scene_pairs(S, N, np.zeros(len(S), int), m.diameter)
-    a = ransac_instances(S, cand, m.kp_points, m.kp_normals, pairs, m.diameter, GroupingConfig(),
-                         np.random.default_rng(3))
-    b = ransac_instances(S, cand, m.kp_points, m.kp_normals, pairs, m.diameter, GroupingConfig(),
-                         np.random.default_rng(3))
+    a = _group("ransac", m, S, N, cand, np.random.default_rng(3))
+    b = _group("ransac", m, S, N, cand, np.random.default_rng(3))
     assert len(a) == len(b) > 0
     for x, y in zip(a, b):
-        np.testing.assert_array_equal(x.T_cam_model, y.T_cam_model)
+        np.testing.assert_array_equal(x.T_scene_model, y.T_scene_model)
 
 
 def test_pair_features_are_rigid_invariant(rng):
@@ -63,23 +74,19 @@ def test_pair_features_are_rigid_invariant(rng):
 
 @pytest.mark.parametrize("outliers", [0.5, 0.9])
 def test_consistency_grouping_recovers_pose(library, rng, outliers):
-    from pcdet.grouping.consistency import consistency_groups
-
     m = library[0]
     ok = 0
     for _ in range(10):
         T, S, N, cand, bad = _problem(m, rng, outlier_share=outliers)
         dist = np.where(bad, 1.0, 0.5)[:, None] + rng.random((len(S), 1)) * 0.6  # descriptors rank imperfectly
-        pairs = scene_pairs(S, N, np.zeros(len(S), int), m.diameter)
-        hyps = consistency_groups(S, cand, dist, m.kp_points, m.kp_normals, pairs, m.diameter, GroupingConfig())
+        hyps = _group("gc", m, S, N, cand, dist=dist)
         if hyps:
-            E = hyps[0].T_cam_model
+            E = hyps[0].T_scene_model
             ok += rotation_error_deg(E[:3, :3], T[:3, :3]) < 2 and np.linalg.norm(E[:3, 3] - T[:3, 3]) < 0.01
     assert ok >= 9, f"{ok}/10 trials within 2 degrees and 1 cm at {outliers:.0%} outliers"
 
 
 def test_detector_with_gc_grouping(synth_small, library):
-    from pcdet.config import PipelineConfig
     from pcdet.datasets.bop import BopDataset
     from pcdet.detector import Detector
     from pcdet.metrics import add
@@ -99,8 +106,6 @@ def test_detector_with_gc_grouping(synth_small, library):
 
 def test_hough_votes_recover_pose(library, rng):
     """Correspondences carrying the model keypoints' own LRFs, rotated into the scene, 90 % outliers."""
-    from pcdet.grouping.hough import hough_groups
-
     m = library[0]
     good = np.flatnonzero(~np.isnan(m.kp_lrfs[:, 0, 0]))
     ok = 0
@@ -113,9 +118,21 @@ def test_hough_votes_recover_pose(library, rng):
         cand = idx.copy()
         bad = rng.random(300) < 0.9
         cand[bad] = rng.choice(good, bad.sum())
-        ref = m.points.mean(axis=0)
-        hyps = hough_groups(S, F, cand[:, None], m.kp_points, m.kp_lrfs, ref, m.diameter, GroupingConfig())
+        N = m.kp_normals[idx] @ T[:3, :3].T
+        hyps = _group("hough", m, S, N, cand[:, None], lrfs=F)
         if hyps:
-            E = hyps[0].T_cam_model
+            E = hyps[0].T_scene_model
             ok += rotation_error_deg(E[:3, :3], T[:3, :3]) < 2 and np.linalg.norm(E[:3, 3] - T[:3, 3]) < 0.01
     assert ok >= 9, f"{ok}/10 trials within 2 degrees and 1 cm"
+
+
+def test_every_registered_grouper_has_its_config_section_and_protocol():
+    """The registry drives the config: each grouper's Config is the [grouping.<name>] section, its defaults are
+    the code's, and the built grouper answers the protocol."""
+    cfg = PipelineConfig()
+    for name, cls in GROUPERS.items():
+        section = getattr(cfg.grouping, name)
+        assert isinstance(section, cls.Config) and section == cls.Config()
+        g = make_grouper(dataclasses.replace(cfg.grouping, method=name))
+        assert g.name == name and isinstance(g.needs_lrfs, bool) and callable(g.group)
+    assert {f.name for f in dataclasses.fields(GroupingConfig)} >= set(GROUPERS)

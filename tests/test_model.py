@@ -1,14 +1,17 @@
 """Model library: formats, BOP folders, units, cache, bad files."""
 import json
 import shutil
+
 import numpy as np
 import pytest
 import trimesh
 
-from pcdet import model as model_mod
+from pcdet import model_cache
 from pcdet.config import PipelineConfig
 from pcdet.errors import InputError
-from pcdet.model import ModelLibrary, UnitsWarning, load_model
+from pcdet.io.models import UnitsWarning, resolve_scale
+from pcdet.library import ModelLibrary
+from pcdet.model_cache import load_model
 
 from .conftest import MODELS, shared
 
@@ -39,7 +42,7 @@ def test_units_autodetected_and_warned(tmp_path):
     assert m.diameter == pytest.approx(np.linalg.norm([0.08, 0.05, 0.03]), rel=0.02)
     # forced to metres, an 80-unit-wide part is warned about (building it at that size is not needed here)
     with pytest.warns(UnitsWarning, match=r"box_mm\.ply: model is 80\.0 m wide when read as m"):
-        assert model_mod._resolve_scale(box_mm.vertices, "m", tmp_path / "box_mm.ply", []) == 1.0
+        assert resolve_scale(box_mm.vertices, "m", tmp_path / "box_mm.ply", []) == 1.0
 
 
 def test_bad_model_files(tmp_path):
@@ -73,7 +76,7 @@ def test_cache_hit_skips_building(tmp_path, monkeypatch):
     shutil.copy(src, tmp_path / "part.ply")
     cfg = PipelineConfig()
     first = load_model(tmp_path / "part.ply", cfg, cache_dir=tmp_path / "cache")
-    monkeypatch.setattr(model_mod, "build_model", lambda *a, **k: pytest.fail("cache was not used"))
+    monkeypatch.setattr(model_cache, "build_model", lambda *a, **k: pytest.fail("cache was not used"))
     second = load_model(tmp_path / "part.ply", cfg, cache_dir=tmp_path / "cache")
     np.testing.assert_array_equal(first.features, second.features)
     np.testing.assert_array_equal(first.points, second.points)
@@ -91,8 +94,8 @@ def test_cache_rebuilds_on_a_changed_file_and_on_a_corrupt_entry(tmp_path, monke
     first = load_model(tmp_path / "part.ply", cache_dir=cache)
     (entry,) = cache.glob("*.npz")
     builds = []
-    real_build = model_mod.build_model
-    monkeypatch.setattr(model_mod, "build_model", lambda *a, **k: builds.append(1) or real_build(*a, **k))
+    real_build = model_cache.build_model
+    monkeypatch.setattr(model_cache, "build_model", lambda *a, **k: builds.append(1) or real_build(*a, **k))
     entry.write_bytes(entry.read_bytes()[:200])  # a crash mid-write on another system, say
     again = load_model(tmp_path / "part.ply", cache_dir=cache)
     assert builds == [1] and list(cache.glob("*.npz")) == [entry]

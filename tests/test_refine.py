@@ -22,7 +22,7 @@ def test_icp_recovers_small_offset(library, rng):
     init[:3, :3] = Rotation.from_rotvec(np.radians(6) * np.array([0.6, 0.8, 0])).as_matrix() @ T[:3, :3]
     init[:3, 3] += [0.008, -0.006, 0.005]
     res = icp(m.points, pts, nrm, init, RefineConfig(iterations=60, max_distance=0.03, kernel=0.02),
-              m.normals, viewpoint=np.zeros(3))
+              source_normals=m.normals, viewpoint=np.zeros(3))
     E = res.T_target_source
     # PCA normals of the target are blurred over 1 cm at this part's many edges, which leaves ~0.6 degrees
     # (0.3 mm at the part's extent) even when started from the truth

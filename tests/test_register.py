@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from pcdet.model import load_geometry
+from pcdet.io.models import load_geometry
 from pcdet.register import register
 
 from .conftest import shared

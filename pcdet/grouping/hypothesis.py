@@ -8,13 +8,14 @@ import numpy as np
 
 @dataclass
 class Hypothesis:
-    """``T_cam_model`` (4, 4) from the correspondences ``inliers`` (indices into the model's correspondence
-    list) of model ``model_index`` (position in the library). ``group``: how many correspondences the grouper
-    proposed it from (Hough: voters of the peak that agree on the rotation; GC: the consistent set; RANSAC:
-    the consensus set), before the robust refit that gives ``inliers``."""
+    """``T_scene_model`` (4, 4) from the correspondences ``inliers`` (indices ``s * k + r`` into the model's
+    candidate table) of model ``model_index`` (position in the library). The scene frame is the camera's in
+    detection and the target cloud's in registration. ``group``: how many correspondences the grouper proposed
+    it from (Hough: voters of the peak that agree on the rotation; GC: the consistent set; RANSAC: the
+    consensus set), before the robust refit that gives ``inliers``."""
 
     model_index: int
-    T_cam_model: np.ndarray
+    T_scene_model: np.ndarray
     inliers: np.ndarray
     group: int = 0
 

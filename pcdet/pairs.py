@@ -1,4 +1,4 @@
-"""Point-pair features (Drost et al. 2010) and the pairwise rigid-consistency test built on them.
+"""Point-pair features (Drost et al. 2010) and the scene keypoint pairs the groupers test them on.
 
 The feature of an ordered pair (p1, n1), (p2, n2) with d = p2 - p1 is
 (|d|, angle(n1, d), angle(n2, d), angle(n1, n2)): four numbers that a rigid motion keeps. Two correspondences

@@ -1,0 +1,101 @@
+"""Model files: meshes (PLY/OBJ/STL/OFF/GLB/GLTF) and point clouds (PLY without faces, PCD, XYZ) read into
+metres, with the units resolved (given, or detected when the numbers can only be millimetres)."""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .clouds import read_cloud
+
+MESH_SUFFIXES = {".ply", ".obj", ".stl", ".off", ".glb", ".gltf"}
+CLOUD_ONLY_SUFFIXES = {".pcd", ".xyz", ".xyzn", ".pts"}
+MODEL_SUFFIXES = MESH_SUFFIXES | CLOUD_ONLY_SUFFIXES
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+# An object wider than this many "metres" is certainly in mm (table-top and warehouse objects are < 3 m).
+MM_DETECT_EXTENT = 3.0
+
+
+class UnitsWarning(UserWarning):
+    """A model's size suggests other units than the ones it was loaded with."""
+
+
+@dataclass
+class Geometry:
+    """A model file's geometry in metres: vertices (V, 3), faces (F, 3) or None (point cloud), per-vertex
+    normals (V, 3) or None, the scale applied to the file's numbers, and notes about units."""
+
+    vertices: np.ndarray
+    faces: np.ndarray | None
+    normals: np.ndarray | None
+    scale: float
+    notes: list[str]
+
+
+def _read_geometry(path: Path):
+    """(vertices (V,3), faces (F,3) or None, normals (V,3) or None) in file units."""
+    import trimesh
+
+    suffix = path.suffix.lower()
+    if suffix in CLOUD_ONLY_SUFFIXES:
+        cd = read_cloud(path)
+        return cd.points, None, cd.normals
+    try:
+        geom = trimesh.load(str(path), process=False)
+    except Exception as e:  # trimesh raises many types for unreadable files; report it as the file's problem
+        raise InputError(f"cannot read model ({type(e).__name__}: {e})", path) from None
+    if isinstance(geom, trimesh.Scene):
+        meshes = [g for g in geom.dump() if isinstance(g, trimesh.Trimesh)] if len(geom.geometry) else []
+        if not meshes:
+            raise InputError("model file holds no mesh geometry", path)
+        geom = trimesh.util.concatenate(meshes)
+    if isinstance(geom, trimesh.Trimesh) and len(geom.faces) > 0:
+        return np.asarray(geom.vertices, float), np.asarray(geom.faces, np.int64), None
+    verts = np.asarray(getattr(geom, "vertices", np.zeros((0, 3))), float)
+    normals = None
+    if suffix == ".ply" and len(verts):  # point-only PLY: take its normals if it has them
+        normals = read_cloud(path, keep_invalid=True).normals
+    return verts, None, normals
+
+
+def resolve_scale(verts: np.ndarray, units, path: Path, notes: list[str]) -> float:
+    """The factor from file units to metres: ``units`` ("m", "cm", "mm" or a number), or with "auto"/None 0.001
+    when the model is over 3 units wide (noted in ``notes``), else 1. Forced units that make the model over 3 m
+    wide are warned about (``UnitsWarning``)."""
+    extent = float(np.ptp(verts, axis=0).max())
+    if units in (None, "auto"):
+        if extent > MM_DETECT_EXTENT:
+            notes.append(f"{path.name}: {extent:.0f} units wide, read as millimetres")
+            return 0.001
+        return 1.0
+    scale = UNITS.get(units) if isinstance(units, str) else float(units)
+    if scale is None:
+        raise InputError(f"unknown units {units!r}; use one of {sorted(UNITS)}, 'auto' or a number", path)
+    if extent * scale > MM_DETECT_EXTENT:
+        warnings.warn(f"{path}: model is {extent * scale:.1f} m wide when read as {units}; is it in millimetres?",
+                      UnitsWarning, stacklevel=3)
+    return scale
+
+
+def load_geometry(path, units="auto") -> Geometry:
+    """Read a mesh or point-cloud model file, validate it and convert it to metres."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: model file not found")
+    if path.suffix.lower() not in MODEL_SUFFIXES:
+        raise InputError(f"unknown model format {path.suffix!r}; expected one of {sorted(MODEL_SUFFIXES)}", path)
+    verts, faces, vnormals = _read_geometry(path)
+    if faces is None:
+        fin = np.isfinite(verts).all(axis=1)
+        verts = verts[fin]
+        vnormals = vnormals[fin] if vnormals is not None else None
+    elif not np.isfinite(verts).all():
+        raise InputError("mesh has non-finite vertex coordinates", path)
+    if len(verts) < 3:
+        raise InputError(f"model has {len(verts)} points; at least 3 are needed", path)
+    notes: list[str] = []
+    scale = resolve_scale(verts, units, path, notes)
+    return Geometry(verts * scale, faces, vnormals, scale, notes)

@@ -1,0 +1,109 @@
+"""What one frame becomes before matching: the scene cloud, its keypoints and descriptors, and the views of the
+keypoints that the groupers work on. Built once per frame; everything derived from it is computed on first
+use and kept (thread-safe, and the same whatever the order of the requests).
+"""
+from __future__ import annotations
+
+import threading
+from typing import Callable, Hashable, TypeVar
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .cloud import Plane, voxel_downsample
+from .lrf import shot_lrf
+
+V = TypeVar("V")
+
+
+class _Memo:
+    """Values computed on first request and kept; one lock per key, so that two threads asking for the same
+    value compute it once and different values in parallel."""
+
+    def __init__(self):
+        self._values: dict = {}
+        self._locks: dict = {}
+        self._lock = threading.Lock()
+
+    def get(self, key: Hashable, compute: Callable[[], V]) -> V:
+        if key in self._values:
+            return self._values[key]
+        with self._lock:
+            lock = self._locks.setdefault(key, threading.Lock())
+        with lock:
+            if key not in self._values:
+                self._values[key] = compute()
+        return self._values[key]
+
+
+class SceneKeypoints:
+    """The scene keypoints one grouper call works on (camera frame, metres).
+
+    points, normals : (S, 3); labels : (S,) int64 Euclidean cluster of each (all 0 when unknown);
+    lrfs : (S, 3, 3) SHOT frames (rows x, y, z; NaN where invalid), given as an array or as a function that
+        computes them on first use; None when there are none;
+    cloud_tree : KD-tree of the whole scene cloud the keypoints come from, or None;
+    index : (S,) positions of these keypoints in the frame's keypoint list.
+    ``cached(key, compute)`` keeps what a grouper derives from the view (its point pairs, say) for the next
+    model that uses the same view.
+    """
+
+    def __init__(self, points: np.ndarray, normals: np.ndarray, *, labels: np.ndarray | None = None,
+                 lrfs: np.ndarray | Callable[[], np.ndarray] | None = None, cloud_tree: cKDTree | None = None,
+                 index: np.ndarray | None = None):
+        self.points = np.asarray(points, float)
+        self.normals = np.asarray(normals, float)
+        self.labels = np.zeros(len(self.points), np.int64) if labels is None else np.asarray(labels)
+        self._lrfs = lrfs
+        self.cloud_tree = cloud_tree
+        self.index = np.arange(len(self.points)) if index is None else index
+        self._memo = _Memo()
+
+    @property
+    def lrfs(self) -> np.ndarray | None:
+        if callable(self._lrfs):
+            return self._memo.get("lrfs", self._lrfs)
+        return self._lrfs
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def cached(self, key: Hashable, compute: Callable[[], V]) -> V:
+        return self._memo.get(key, compute)
+
+
+class Scene:
+    """One frame's scene, as the stages after preprocessing see it.
+
+    points, normals : (N, 3) voxel-grid scene points (m) and normals facing the camera; labels : (N,) cluster of
+    each; plane : the removed supporting plane or None; tree : KD-tree of the points (None when empty);
+    keypoints : (K,) int64 indices into points; descriptors : (K, 33) float32 FPFH of each;
+    lrf_radius : m, support of the keypoints' local reference frames.
+    """
+
+    def __init__(self, points: np.ndarray, normals: np.ndarray, labels: np.ndarray, plane: Plane | None,
+                 keypoints: np.ndarray, descriptors: np.ndarray, *, lrf_radius: float):
+        self.points, self.normals, self.labels, self.plane = points, normals, labels, plane
+        self.keypoints, self.descriptors = keypoints, descriptors
+        self.lrf_radius = lrf_radius
+        self.tree = cKDTree(points) if len(points) else None
+        self._memo = _Memo()
+
+    @property
+    def lrfs(self) -> np.ndarray:
+        """(K, 3, 3) SHOT frames of the keypoints (NaN where too few points support one); computed once."""
+        return self._memo.get("lrfs", lambda: shot_lrf(self.points, self.points[self.keypoints],
+                                                       self.lrf_radius, self.tree)[0])
+
+    def keypoints_at(self, step: float, *, min_step: float) -> SceneKeypoints:
+        """The keypoints at least ``step`` m apart (one per voxel of that side; all of them when ``step`` is
+        within 5 % of ``min_step``, the keypoint spacing), as a ``SceneKeypoints`` view shared by every model
+        that asks for the same step. Its LRFs are the frame's, taken on first use."""
+        def build() -> SceneKeypoints:
+            kp = self.keypoints
+            sub = np.arange(len(kp)) if step <= min_step * 1.05 else \
+                np.sort(voxel_downsample(self.points[kp], step)[2])
+            return SceneKeypoints(self.points[kp[sub]], self.normals[kp[sub]], labels=self.labels[kp[sub]],
+                                  lrfs=lambda: self.lrfs[sub], cloud_tree=self.tree, index=sub)
+
+        return self._memo.get(("view", step), build)
