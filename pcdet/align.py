@@ -26,16 +26,7 @@ def kabsch_batch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = 
     cs = (w * src).sum(axis=1)
     cd = (w * dst).sum(axis=1)
     H = np.matmul((src - cs[:, None]).transpose(0, 2, 1), w * (dst - cd[:, None]))  # (B, 3, 3)
-    U, _, Vt = np.linalg.svd(H)
-    V = Vt.transpose(0, 2, 1)
-    d = np.sign(np.linalg.det(np.matmul(V, U.transpose(0, 2, 1))))
-    d[d == 0] = 1.0
-    V[:, :, 2] *= d[:, None]  # flip the last axis where needed: never a reflection
-    R = np.matmul(V, U.transpose(0, 2, 1))
-    T = np.tile(np.eye(4), (B, 1, 1))
-    T[:, :3, :3] = R
-    T[:, :3, 3] = cd - np.matmul(R, cs[..., None])[..., 0]
-    return T
+    return _rigid_from_covariance(H, cs, cd)
 
 
 def kabsch_shared(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -53,13 +44,19 @@ def kabsch_shared(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.n
     # sum_i w_i (s_i - cs)(d_i - cd)^T = sum_i w_i s_i d_i^T - wsum cs cd^T
     H = np.einsum("bn,ni,nj->bij", w, src, dst, optimize=True) / wsum[:, None, None] \
         - cs[:, :, None] * cd[:, None, :]
+    return _rigid_from_covariance(H, cs, cd)
+
+
+def _rigid_from_covariance(H: np.ndarray, cs: np.ndarray, cd: np.ndarray) -> np.ndarray:
+    """(B, 4, 4) rigid transforms from B cross-covariances H (B, 3, 3) of centred source/target points and the
+    centroids cs, cd (B, 3): R = V diag(1, 1, d) U^T with d = sign det(V U^T), so never a reflection."""
     U, _, Vt = np.linalg.svd(H)
     V = Vt.transpose(0, 2, 1)
     d = np.sign(np.linalg.det(np.matmul(V, U.transpose(0, 2, 1))))
     d[d == 0] = 1.0
-    V[:, :, 2] *= d[:, None]
+    V[:, :, 2] *= d[:, None]  # flip the last axis where needed
     R = np.matmul(V, U.transpose(0, 2, 1))
-    T = np.tile(np.eye(4), (len(w), 1, 1))
+    T = np.tile(np.eye(4), (len(H), 1, 1))
     T[:, :3, :3] = R
     T[:, :3, 3] = cd - np.matmul(R, cs[..., None])[..., 0]
     return T

@@ -1,21 +1,21 @@
 """Pinhole camera (OpenCV convention: x right, y down, z forward) and back-projection."""
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from .errors import InputError
+from .io.jsonfile import read_json
 
 
 @dataclass(frozen=True)
 class Camera:
     """Pinhole intrinsics in pixels; ``width`` x ``height`` is the image size.
 
-    ``depth_scale`` converts a raw 16-bit depth value to metres (``raw * depth_scale = m``); note that camera
-    files give it in millimetres per unit, as BOP does.
+    ``depth_scale`` is millimetres per raw 16-bit depth unit (``raw * depth_scale = mm``), in memory and in
+    files alike, as in BOP: 1.0 for Kinect-style PNGs in mm, 0.1 for YCB-Video, 0.2 for TUM RGB-D.
+    ``metres_per_unit`` is the same in metres.
     """
 
     fx: float
@@ -24,7 +24,7 @@ class Camera:
     cy: float
     width: int
     height: int
-    depth_scale: float = 0.001
+    depth_scale: float = 1.0
 
     def __post_init__(self):
         for name in ("fx", "fy"):
@@ -37,6 +37,11 @@ class Camera:
             raise InputError(f"camera depth_scale must be positive, got {self.depth_scale!r}")
 
     @property
+    def metres_per_unit(self) -> float:
+        """m per raw depth unit: ``depth_scale`` / 1000."""
+        return self.depth_scale / 1000.0
+
+    @property
     def K(self) -> np.ndarray:
         """(3, 3) float64 intrinsic matrix."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
@@ -46,7 +51,7 @@ class Camera:
                 "width": self.width, "height": self.height, "depth_scale": self.depth_scale}
 
     @classmethod
-    def from_K(cls, K, width: int, height: int, depth_scale: float = 0.001) -> "Camera":
+    def from_K(cls, K, width: int, height: int, depth_scale: float = 1.0) -> "Camera":
         K = np.asarray(K, dtype=float).reshape(3, 3)
         return cls(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), int(width), int(height),
                    float(depth_scale))
@@ -61,15 +66,7 @@ class Camera:
         in mm). As in BOP, ``depth_scale`` is millimetres per raw unit (raw * depth_scale = mm; default 1).
         ``width``/``height`` fill in sizes that the file lacks (BOP scene_camera.json has none).
         """
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: camera file not found")
-        try:
-            data = json.loads(path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise InputError(f"camera file is not valid JSON ({e})", path) from None
-        if not isinstance(data, dict):
-            raise InputError("camera file must hold a JSON object", path)
+        data = read_json(path, what="camera file")
         return cls.from_dict(data, path=path, width=width, height=height, key=key)
 
     @classmethod
@@ -78,14 +75,14 @@ class Camera:
             if "intrinsic_matrix" in data:
                 # Open3D: column-major 3x3; its depth_scale is raw units per metre (default 1000, i.e. mm)
                 K = np.asarray(data["intrinsic_matrix"], dtype=float).reshape(3, 3).T
-                return cls.from_K(K, data["width"], data["height"], 1.0 / float(data.get("depth_scale", 1000.0)))
+                return cls.from_K(K, data["width"], data["height"], 1000.0 / float(data.get("depth_scale", 1000.0)))
             if "cam_K" in data:  # one BOP scene_camera entry: depth_scale is mm per raw unit
                 return cls.from_K(data["cam_K"], data.get("width", width), data.get("height", height),
-                                  float(data.get("depth_scale", 1.0)) / 1000.0)
+                                  float(data.get("depth_scale", 1.0)))
             if "fx" in data:  # depth_scale as in BOP: raw * depth_scale = millimetres
                 return cls(float(data["fx"]), float(data["fy"]), float(data["cx"]), float(data["cy"]),
                            int(data.get("width", width)), int(data.get("height", height)),
-                           float(data.get("depth_scale", 1.0)) / 1000.0)
+                           float(data.get("depth_scale", 1.0)))
             entries = {k: v for k, v in data.items() if isinstance(v, dict) and "cam_K" in v}
             if entries:
                 k = str(key) if key is not None else sorted(entries, key=lambda s: int(s) if s.isdigit() else s)[0]
@@ -127,6 +124,10 @@ class Camera:
         z = np.asarray(z, np.float64)
         v, u = np.divmod(np.asarray(pixels), self.width)
         return np.stack([(u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z], axis=1)
+
+    def in_image(self, uv: np.ndarray) -> np.ndarray:
+        """(N,) bool: which integer pixel coordinates ``uv`` (N, 2) (u, v) lie inside the image."""
+        return (uv[:, 0] >= 0) & (uv[:, 0] < self.width) & (uv[:, 1] >= 0) & (uv[:, 1] < self.height)
 
     def project(self, points: np.ndarray) -> np.ndarray:
         """(N, 3) camera-frame points (m) -> (N, 2) float pixel coordinates (u, v)."""

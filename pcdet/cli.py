@@ -10,31 +10,29 @@ from typing import Optional
 
 import numpy as np
 import typer
-from rich.console import Console
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    ProgressColumn,
+    TextColumn,
+    TimeElapsedColumn,
+)
 from rich.table import Table
 from rich.text import Text
 
-from .image.cli import image_app
-
 from . import __version__
-from .errors import InputError
+from .console import console, fail, guard, out_console
+from .image.cli import image_app
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Find known rigid objects in depth data and estimate their 6-DoF poses.")
 config_app = typer.Typer(no_args_is_help=True, help="Pipeline configuration.")
 app.add_typer(config_app, name="config")
 app.add_typer(image_app, name="image")
-console = Console(stderr=True)
-out_console = Console(width=None if sys.stdout.isatty() else 120)  # tables stay readable when piped
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
-
-
-def _fail(msg: str, code: int = 1):
-    console.print(f"[bold red]error:[/] {escape(msg)}", highlight=False, soft_wrap=True)
-    raise typer.Exit(code)
 
 
 def _pipeline(pipeline: Optional[str], seed: Optional[int], grouping: Optional[str] = None):
@@ -49,7 +47,7 @@ def _pipeline(pipeline: Optional[str], seed: Optional[int], grouping: Optional[s
 
 
 def _library(models: Path, cfg, units: str):
-    from .model import ModelLibrary
+    from .library import ModelLibrary
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -63,21 +61,8 @@ def _library(models: Path, cfg, units: str):
     return lib
 
 
-def _guard(fn):
-    """Turn expected errors into one clear line and a non-zero exit."""
-    import functools
-
-    @functools.wraps(fn)
-    def wrapper(*a, **k):
-        try:
-            return fn(*a, **k)
-        except (InputError, FileNotFoundError, ValueError) as e:
-            _fail(str(e))
-    return wrapper
-
-
 @app.command()
-@_guard
+@guard
 def detect(models: Path = typer.Option(MODELS_DIR, help="Folder of object models (meshes or clouds; BOP "
                                        "models/), or one model file."),
            depth: Optional[Path] = typer.Option(None, help="16-bit depth PNG."),
@@ -99,9 +84,9 @@ def detect(models: Path = typer.Option(MODELS_DIR, help="Folder of object models
     from .io.results import write_detections_json
 
     if (depth is None) == (cloud is None):
-        _fail("give either --depth with --camera, or --cloud")
+        fail("give either --depth with --camera, or --cloud")
     if depth is not None and camera is None:
-        _fail("--depth needs --camera (a camera JSON)")
+        fail("--depth needs --camera (a camera JSON)")
     cfg = _pipeline(pipeline, seed, grouping)
     frame = Frame.from_depth_png(depth, camera, rgb_path=rgb) if depth else Frame.from_cloud(cloud)
     lib = _library(models, cfg, units)
@@ -128,7 +113,7 @@ def _print_detections(res):
 
 
 @app.command()
-@_guard
+@guard
 def run(recording: Path = typer.Argument(..., help="Recording or dataset folder: BOP, TUM RGB-D, Redwood log "
                                          "layout, depth/ + camera.json, or a folder of clouds."),
         models: Optional[Path] = typer.Option(None, help="Model folder (default: the dataset's models/)."),
@@ -147,6 +132,8 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
                                            "when a track is lost)."),
         workers: int = typer.Option(1, help="Processes to spread frames (with --track: scenes) over; with "
                                     "--executor ray, the CPUs of a local Ray instance."),
+        threads: Optional[int] = typer.Option(None, help="Detector threads when --workers is 1 (default: the "
+                                              "machine's cores). Results do not depend on it."),
         executor: str = typer.Option("local", help="local (processes here) or ray (needs pcdet[ray])."),
         ray_address: Optional[str] = typer.Option(None, help="Ray cluster to use (default: start a local one)."),
         times: bool = typer.Option(False, help="Write measured times into results.csv (default -1, so that "
@@ -154,28 +141,28 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
         ):
     """Detect objects in every frame of a recording or dataset."""
     from .datasets import open_recording
-    from .runner import describe, run_recording
+    from .runner import RunOptions, describe, run_recording
 
     if targets not in (None, "gt"):
-        _fail(f"--targets takes 'gt', got {targets!r}")
+        fail(f"--targets takes 'gt', got {targets!r}")
     if workers < 1:
-        _fail(f"--workers must be >= 1, got {workers}")
+        fail(f"--workers must be >= 1, got {workers}")
     cfg = _pipeline(pipeline, seed, grouping)
     rec = open_recording(recording, format)
     if len(rec) == 0:
-        _fail(f"{recording}: no frames")
+        fail(f"{recording}: no frames")
     if targets == "gt" and rec.targets(rec.images[0]) is None:
-        _fail(f"{recording}: --targets gt needs per-frame labels (a BOP scene_gt.json); this is a {rec.format} "
+        fail(f"{recording}: --targets gt needs per-frame labels (a BOP scene_gt.json); this is a {rec.format} "
               "recording")
     models = models or rec.models_dir
     if models is None:
-        _fail(f"{recording}: no models/ folder; pass --models")
+        fail(f"{recording}: no models/ folder; pass --models")
     lib = _library(models, cfg, units)
     if executor not in ("local", "ray"):
-        _fail(f"--executor takes local or ray, got {executor!r}")
+        fail(f"--executor takes local or ray, got {executor!r}")
     if track:
         if resume or targets:
-            _fail("--track follows each scene from its first frame: it takes no --resume or --targets")
+            fail("--track follows each scene from its first frame: it takes no --resume or --targets")
         return _run_tracking(rec, lib, cfg, out, redetect_every, workers, executor, ray_address)
     with _progress(rate=True) as prog:
         task = prog.add_task("detecting", total=len(rec), dets=0)
@@ -188,8 +175,9 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
                                    soft_wrap=True)
             prog.update(task, advance=1, dets=count["d"])
 
-        s = run_recording(rec, lib, cfg, out, targets == "gt", __version__, times, on_image, resume, workers,
-                          executor, ray_address)
+        opts = RunOptions(targets=targets == "gt", resume=resume, workers=workers, threads=threads,
+                          executor=executor, ray_address=ray_address, record_time=times, version=__version__)
+        s = run_recording(rec, lib, cfg, out, opts, on_image=on_image)
         prog.update(task, completed=len(rec))
     med = float(np.median(s.seconds)) if s.seconds else 0.0
     kept = f", {s.resumed} kept from before" if s.resumed else ""
@@ -201,23 +189,15 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
 
 def _run_tracking(rec, lib, cfg, out: Path, redetect_every: int, workers: int, executor: str,
                   ray_address: str | None):
-    from .io.atomic import atomic_write_text
-    from .tracking import TrackingConfig, track_recording
+    from .tracking import TrackingConfig, track_recording, write_tracks_json
 
     tcfg = TrackingConfig(redetect_every=redetect_every)
     with _progress(rate=True, detections=False) as prog:
         task = prog.add_task("tracking", total=len(rec))
-        res = track_recording(rec, lib, cfg, tcfg, workers, executor, ray_address,
+        res = track_recording(rec, lib, cfg, tcfg, workers=workers, executor=executor, ray_address=ray_address,
                               on_frame=lambda i, mode, s: prog.update(task, advance=1))
         prog.update(task, completed=len(rec))
-    out.mkdir(parents=True, exist_ok=True)
-    scenes = []
-    for sid, r in res.items():
-        refs = [f for f in rec if f.scene_id == sid]
-        scenes.append({"scene_id": sid, "frames": [f.im_id for f in refs], **r.to_dict()})
-    doc = {"pcdet_version": __version__, "recording": str(rec.root), "format": rec.format, "scenes": scenes,
-           "pipeline": cfg.to_dict()}
-    atomic_write_text(out / "tracks.json", json.dumps(doc, indent=1))
+    write_tracks_json(out / "tracks.json", rec, res, cfg.to_dict(), __version__)
     modes = [m for r in res.values() for m in r.modes]
     for sid, r in res.items():
         for f, m in zip([f for f in rec if f.scene_id == sid], r.modes):
@@ -247,7 +227,7 @@ def _progress(detections: bool = True, rate: bool = False):
 
 
 @app.command()
-@_guard
+@guard
 def register(source: Path = typer.Argument(..., help="Model or cloud to move (mesh, PLY/PCD/XYZ)."),
              target: Path = typer.Argument(..., help="Scan to align it to."),
              out: Optional[Path] = typer.Option(None, help="JSON file for T_target_source."),
@@ -263,7 +243,7 @@ def register(source: Path = typer.Argument(..., help="Model or cloud to move (me
 
     with console.status("registering"):
         r = do_register(source, target, RegisterConfig(voxel=voxel, grouping=grouping or "ransac", seed=seed),
-                        units)
+                        units=units)
     np.set_printoptions(precision=6, suppress=True)
     out_console.print("T_target_source =")
     out_console.print(str(r.T_target_source))
@@ -278,7 +258,7 @@ def register(source: Path = typer.Argument(..., help="Model or cloud to move (me
 
 
 @app.command()
-@_guard
+@guard
 def synth(models: Path = typer.Option(MODELS_DIR, help="Folder of mesh models."),
           out: Path = typer.Option(..., help="Output BOP dataset folder."),
           scenes: int = typer.Option(20, help="Number of scenes (one image each)."),
@@ -305,7 +285,7 @@ def synth(models: Path = typer.Option(MODELS_DIR, help="Folder of mesh models.")
 
 
 @app.command("eval")
-@_guard
+@guard
 def eval_cmd(dataset: Path = typer.Argument(..., help="BOP dataset with ground truth."),
              results: Path = typer.Argument(..., help="BOP results CSV."),
              models: Optional[Path] = typer.Option(None, help="Model folder (default: DATASET/models)."),
@@ -317,14 +297,14 @@ def eval_cmd(dataset: Path = typer.Argument(..., help="BOP dataset with ground t
     from .datasets.bop import BopDataset
     from .evaluate import evaluate
     from .io.atomic import atomic_write_text
-    from .io.results import read_bop_csv
+    from .io.bop import read_results_csv
 
     ds = BopDataset(dataset)
     models = models or ds.models_dir
     if models is None:
-        _fail(f"{dataset}: no models/ folder; pass --models")
+        fail(f"{dataset}: no models/ folder; pass --models")
     lib = _library(models, PipelineConfig(), units)
-    ev = evaluate(ds, read_bop_csv(results), lib)
+    ev = evaluate(ds, read_results_csv(results), lib)
     _print_eval(ev, lib)
     if json_out:
         atomic_write_text(json_out, json.dumps(ev.to_dict(), indent=1, default=float))
@@ -348,7 +328,7 @@ def _print_eval(ev, lib):
 
 
 @app.command()
-@_guard
+@guard
 def demo(out: Path = typer.Option(Path("demo_out"), help="Output folder."),
          scenes: int = typer.Option(3, help="Synthetic scenes to make."),
          seed: int = typer.Option(0, help="Random seed."),
@@ -357,9 +337,9 @@ def demo(out: Path = typer.Option(Path("demo_out"), help="Output folder."),
     from .config import load_pipeline
     from .datasets.bop import BopDataset
     from .evaluate import evaluate
+    from .io.bop import read_results_csv
     from .io.depth import write_png
-    from .io.results import read_bop_csv
-    from .runner import run_recording
+    from .runner import RunOptions, run_recording
     from .synth import SynthConfig, synthesize
     from .viz import overlay as draw
 
@@ -380,8 +360,8 @@ def demo(out: Path = typer.Option(Path("demo_out"), help="Output folder."),
             results.setdefault("first", (img, res))  # drawn below, without detecting again
             prog.update(task, advance=1, dets=count["d"])
 
-        s = run_recording(ds, lib, cfg, out / "run", version=__version__, on_image=on_image)
-    ev = evaluate(ds, read_bop_csv(out / "run" / "results.csv"), lib)
+        s = run_recording(ds, lib, cfg, out / "run", RunOptions(version=__version__), on_image=on_image)
+    ev = evaluate(ds, read_results_csv(out / "run" / "results.csv"), lib)
     _print_eval(ev, lib)
     img, res = results["first"]
     write_png(out / "overlay.png", draw(ds.frame(img), res.detections if res else [], lib, cfg.preprocess.voxel))
@@ -390,7 +370,7 @@ def demo(out: Path = typer.Option(Path("demo_out"), help="Output folder."),
 
 
 @config_app.command("dump")
-@_guard
+@guard
 def config_dump(pipeline: Optional[str] = typer.Option(None, help="Preset name or TOML file (default: defaults)."),
                 ):
     """Print the resolved pipeline configuration as TOML."""

@@ -3,10 +3,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-
 from .datasets.bop import BopDataset
+from .library import ModelLibrary
 from .metrics import VSD_TAUS, InstanceErrors, match_image, summarize, vsd
-from .model import ModelLibrary
 from .verify import render_model
 
 
@@ -25,7 +24,7 @@ class Evaluation:
 
 
 def evaluate(ds: BopDataset, estimates: list[dict], library: ModelLibrary, with_vsd: bool = True) -> Evaluation:
-    """estimates : rows as from ``read_bop_csv`` (scene_id, im_id, obj_id, score, T_cam_model).
+    """estimates : rows as from ``io.bop.read_results_csv`` (scene_id, im_id, obj_id, score, T_cam_model).
 
     Estimates are matched to ground truth by MSSD (``metrics.match_image``); with ``with_vsd`` each matched
     pair is also rendered and scored by VSD against the image's depth."""
@@ -40,7 +39,7 @@ def evaluate(ds: BopDataset, estimates: list[dict], library: ModelLibrary, with_
         gts = ds.gt(img)
         ests = by_img.get((img.scene_id, img.im_id), [])
         cam = ds.camera(img)
-        errs, _ = match_image(gts, ests, points, cam.K, cam.width, scene_id=img.scene_id, im_id=img.im_id,
+        errs, _ = match_image(gts, ests, points, cam.K, image_width=cam.width, scene_id=img.scene_id, im_id=img.im_id,
                               diameters=diam)
         if with_vsd and any(e.score is not None for e in errs):
             _add_vsd(errs, gts, ests, ds.frame(img), library)
@@ -68,6 +67,6 @@ def _add_vsd(errs: list[InstanceErrors], gts: list[dict], ests: list[dict], fram
         if e.est_index < 0:
             continue
         m = library.by_id(e.obj_id)
-        d_est = render_model(m, ests[e.est_index]["T_cam_model"], frame.camera, 0.004)
-        d_gt = render_model(m, gts[e.gt_index]["T_cam_model"], frame.camera, 0.004)
+        d_est = render_model(m, ests[e.est_index]["T_cam_model"], frame.camera)
+        d_gt = render_model(m, gts[e.gt_index]["T_cam_model"], frame.camera)
         e.vsd = vsd(d_est, d_gt, frame.depth, VSD_TAUS * m.diameter).tolist()

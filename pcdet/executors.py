@@ -9,16 +9,18 @@ from __future__ import annotations
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, Callable, Iterator, Sequence
 
+from .errors import ConfigError, DependencyError
+
 EXECUTORS = ("local", "ray")
 
 
-def map_chunks(fn: Callable[[Any, Any], Any], shared: Any, chunks: Sequence[Any], workers: int = 1,
+def map_chunks(fn: Callable[[Any, Any], Any], shared: Any, chunks: Sequence[Any], *, workers: int = 1,
                executor: str = "local", ray_address: str | None = None) -> Iterator[Any]:
     """``fn(shared, chunk)`` for each chunk, results in order. executor "local": ``workers`` processes (1: this
     process); "ray": tasks on the Ray cluster at ``ray_address`` (None: start a local Ray instance with
     ``workers`` CPUs, shut down afterwards)."""
     if executor not in EXECUTORS:
-        raise ValueError(f"executor must be one of {EXECUTORS}, got {executor!r}")
+        raise ConfigError(f"executor must be one of {EXECUTORS}, got {executor!r}")
     if executor == "ray":
         yield from _ray_map(fn, shared, chunks, workers, ray_address)
     elif workers <= 1 or len(chunks) < 2:
@@ -33,7 +35,7 @@ def _ray_map(fn, shared, chunks, workers: int, address: str | None) -> Iterator[
     try:
         import ray
     except ImportError:
-        raise RuntimeError("--executor ray needs Ray: pip install 'pcdet[ray]'") from None
+        raise DependencyError("--executor ray needs Ray: pip install 'pcdet[ray]'") from None
     started = not ray.is_initialized()
     if started:
         kw = {"address": address} if address else {"num_cpus": max(1, workers)}

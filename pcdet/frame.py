@@ -63,13 +63,13 @@ class Frame:
         if raw.shape != (camera.height, camera.width):
             raise InputError(f"depth image is {raw.shape[1]}x{raw.shape[0]} but the camera is "
                              f"{camera.width}x{camera.height}", depth_path)
-        depth = raw.astype(np.float32) * np.float32(camera.depth_scale)
+        depth = raw.astype(np.float32) * np.float32(camera.metres_per_unit)
         valid = depth[depth > 0]
         if valid.size == 0:
             raise InputError("depth image holds no valid (non-zero) pixel", depth_path)
         med = float(np.median(valid))
         if not plausible_m[0] <= med <= plausible_m[1]:
-            raise InputError(f"median depth is {med:.4g} m with {camera.depth_scale * 1000:g} mm per raw unit: "
+            raise InputError(f"median depth is {med:.4g} m with {camera.depth_scale:g} mm per raw unit: "
                              "the camera's depth_scale is probably wrong (it is mm per unit, as in BOP; "
                              "Kinect-style PNGs in mm need 1.0)", depth_path)
         rgb = read_rgb(rgb_path) if rgb_path is not None else None
@@ -143,7 +143,7 @@ def _virtual_camera(pts: np.ndarray, max_size: int = 1280) -> Camera:
 
 def _zbuffer(pts: np.ndarray, camera: Camera) -> np.ndarray:
     uv = np.rint(camera.project(pts)).astype(np.int64)
-    ok = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
+    ok = camera.in_image(uv)
     depth = np.full(camera.height * camera.width, np.inf)
     np.minimum.at(depth, uv[ok, 1] * camera.width + uv[ok, 0], pts[ok, 2])
     depth[~np.isfinite(depth)] = 0

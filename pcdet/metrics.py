@@ -11,6 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .align import transform
+
 MSSD_THRESHOLDS = np.arange(0.05, 0.51, 0.05)  # x object diameter
 MSPD_THRESHOLDS_PX = np.arange(5, 51, 5)  # x image width / 640
 VSD_TAUS = np.arange(0.05, 0.51, 0.05)  # x object diameter
@@ -18,18 +20,14 @@ VSD_THETAS = np.arange(0.05, 0.51, 0.05)  # error below which a pose counts as c
 VSD_DELTA = 0.015  # m, tolerance of the visibility test (BOP: 15 mm)
 
 
-def _apply(T: np.ndarray, X: np.ndarray) -> np.ndarray:
-    return X @ T[:3, :3].T + T[:3, 3]
-
-
 def add(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray) -> float:
     """ADD (Hinterstoisser 2012): mean over model points x of ||T_est x - T_gt x|| (m)."""
-    return float(np.linalg.norm(_apply(T_est, points) - _apply(T_gt, points), axis=1).mean())
+    return float(np.linalg.norm(transform(T_est, points) - transform(T_gt, points), axis=1).mean())
 
 
 def adds(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray) -> float:
     """ADD-S: mean over model points x of min over y of ||T_est x - T_gt y|| (m); for symmetric objects."""
-    d, _ = cKDTree(_apply(T_gt, points)).query(_apply(T_est, points))
+    d, _ = cKDTree(transform(T_gt, points)).query(transform(T_est, points))
     return float(d.mean())
 
 
@@ -37,8 +35,8 @@ def mssd(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray, symmetries: li
     """MSSD (BOP): min over symmetry transforms S of max over x of ||T_est x - T_gt S x|| (m).
     ``symmetries`` are (4, 4) model-frame transforms; the identity is always included."""
     syms = [np.eye(4)] + list(symmetries or [])
-    pe = _apply(T_est, points)
-    return float(min(np.linalg.norm(pe - _apply(T_gt @ S, points), axis=1).max() for S in syms))
+    pe = transform(T_est, points)
+    return float(min(np.linalg.norm(pe - transform(T_gt @ S, points), axis=1).max() for S in syms))
 
 
 def mspd(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray, K: np.ndarray,
@@ -46,7 +44,7 @@ def mspd(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray, K: np.ndarray,
     """MSPD (BOP): min over symmetries of max over x of ||proj(T_est x) - proj(T_gt S x)|| (pixels), with the
     pinhole projection by K (3, 3)."""
     def proj(T):
-        p = _apply(T, points) @ K.T
+        p = transform(T, points) @ K.T
         return p[:, :2] / p[:, 2:3]
 
     syms = [np.eye(4)] + list(symmetries or [])
@@ -109,7 +107,7 @@ class InstanceErrors:
     est_index: int = -1  # position of the matched estimate in the image's list (-1: none)
 
 
-def match_image(gts: list[dict], ests: list[dict], points: dict[int, np.ndarray], K: np.ndarray,
+def match_image(gts: list[dict], ests: list[dict], points: dict[int, np.ndarray], K: np.ndarray, *,
                 image_width: int = 640, symmetries: dict[int, list[np.ndarray]] | None = None,
                 scene_id: int = 0, im_id: int = 0, diameters: dict[int, float] | None = None
                 ) -> tuple[list[InstanceErrors], int]:

@@ -22,9 +22,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .cloud import estimate_normals, voxel_downsample
-from .config import RefineConfig
 from .frame import Frame
-from .refine import icp
+from .refine import RefineConfig, icp
 
 
 @dataclass(frozen=True)
@@ -97,6 +96,13 @@ class Odometry:
         self.T = np.eye(4)
         self.last_step = np.eye(4)
         self.gap = 0
+
+    def reset(self, T_first_cam: np.ndarray) -> None:
+        """Take ``T_first_cam`` (4, 4) as the current camera pose (a correction from elsewhere, such as tracked
+        objects); the next frame is predicted from it."""
+        self.T = np.asarray(T_first_cam, float).copy()
+        if self.kiss is not None:
+            self.kiss.last_pose = self.T.copy()
 
     def skip(self) -> None:
         """A frame could not be read: the next step predicts two frames' worth of motion (constant velocity)."""

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import minimum_filter
 
+from .align import transform
 from .camera import Camera
 
 
@@ -44,7 +45,7 @@ def render_meshes(camera: Camera, meshes: list[tuple[np.ndarray, np.ndarray, np.
     scene = o3d.t.geometry.RaycastingScene()
     geom_to_obj = {}
     for i, (verts, faces, T) in enumerate(meshes):
-        v = np.asarray(verts, float) @ T[:3, :3].T + T[:3, 3]
+        v = transform(T, np.asarray(verts, float))
         gid = scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)),
                                   o3d.core.Tensor(np.asarray(faces, dtype=np.uint32)))
         geom_to_obj[gid] = i
@@ -76,7 +77,7 @@ def mesh_depth_at(camera: Camera, vertices: np.ndarray, faces: np.ndarray, T_cam
     from ._o3d import o3d
 
     scene = o3d.t.geometry.RaycastingScene()
-    v = np.asarray(vertices, float) @ T_cam_mesh[:3, :3].T + T_cam_mesh[:3, 3]
+    v = transform(T_cam_mesh, np.asarray(vertices, float))
     scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(np.asarray(faces, dtype=np.uint32)))
     t = scene.cast_rays(o3d.core.Tensor(camera_rays(camera, pixels)))["t_hit"].numpy()
     return np.where(np.isfinite(t), t, 0).astype(np.float32)
@@ -91,7 +92,7 @@ def render_points(camera: Camera, points_cam: np.ndarray, spacing: float) -> np.
     if len(p) == 0:
         return out
     uv = np.rint(camera.project(p)).astype(np.int64)
-    ok = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
+    ok = camera.in_image(uv)
     if not ok.any():
         return out
     uv, z = uv[ok], p[ok, 2]

@@ -21,8 +21,10 @@ from .datasets.base import FrameRef
 from .detector import DetectionResult, Detector
 from .executors import map_chunks, split
 from .io.atomic import atomic_write_text
-from .io.results import write_bop_csv, write_detections_json
-from .model import ModelLibrary
+from .io.bop import results_row, write_results_csv
+from .io.jsonfile import read_json
+from .io.results import write_detections_json
+from .library import ModelLibrary
 
 
 @dataclass
@@ -32,6 +34,32 @@ class RunSummary:
     resumed: int = 0
     failed: list[tuple[str, str]] = field(default_factory=list)
     seconds: list[float] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How ``run_recording`` runs.
+
+    targets : localise the objects the recording labels per frame (BOP scene_gt.json); needs labels.
+    resume : keep frames whose JSON already exists in the output folder and detect only the others.
+    workers : processes to spread frames over (1: this process); with Ray, the CPUs of a local instance.
+    threads : the detector's threads in this process when ``workers`` is 1 (None: the machine's cores); worker
+        processes use one each. The output does not depend on it.
+    executor : "local" (processes on this machine) or "ray" (tasks on the cluster at ``ray_address``, or on a
+        local Ray instance when that is None).
+    record_time : write measured seconds into results.csv's ``time`` column (else -1, BOP's "not measured",
+        so that the same input, config and seed give a byte-identical file).
+    version : pcdet's version, written into each frame's JSON.
+    """
+
+    targets: bool = False
+    resume: bool = False
+    workers: int = 1
+    threads: int | None = None
+    executor: str = "local"
+    ray_address: str | None = None
+    record_time: bool = False
+    version: str = ""
 
 
 def frame_json_path(out: Path, ref: FrameRef) -> Path:
@@ -59,47 +87,39 @@ def _detect_chunk(shared, refs: list[FrameRef]) -> list:
     return [_detect_one(rec, r, targets, det) for r in refs]
 
 
-def _detect_all(rec, refs: list[FrameRef], library: ModelLibrary, cfg: PipelineConfig, targets: bool,
-                workers: int, executor: str, ray_address: str | None
+def _detect_all(rec, refs: list[FrameRef], library: ModelLibrary, cfg: PipelineConfig, opt: RunOptions
                 ) -> Iterator[tuple[FrameRef, DetectionResult | None, str | None]]:
     """Results in the order of ``refs``: here, frame by frame, or in chunks on a pool or on Ray."""
-    if executor == "local" and workers <= 1:
-        det = Detector(library, cfg)
+    if opt.executor == "local" and opt.workers <= 1:
+        det = Detector(library, cfg, workers=opt.threads)
         for ref in refs:
-            yield _detect_one(rec, ref, targets, det)
+            yield _detect_one(rec, ref, opt.targets, det)
         return
-    chunks = split(refs, 4 * max(workers, 1))  # a few chunks per worker evens out slow frames
-    for results in map_chunks(_detect_chunk, (rec, library, cfg, targets), chunks, workers, executor,
-                              ray_address):
+    chunks = split(refs, 4 * max(opt.workers, 1))  # a few chunks per worker evens out slow frames
+    for results in map_chunks(_detect_chunk, (rec, library, cfg, opt.targets), chunks, workers=opt.workers,
+                              executor=opt.executor, ray_address=opt.ray_address):
         yield from results
 
 
-def run_recording(rec, library: ModelLibrary, cfg: PipelineConfig, out, targets: bool = False,
-                  version: str = "", record_time: bool = False,
-                  on_image: Callable[[FrameRef, DetectionResult | None, str | None], None] | None = None,
-                  resume: bool = False, workers: int = 1, executor: str = "local",
-                  ray_address: str | None = None) -> RunSummary:
-    """Detect in every frame of ``rec`` (any reader of ``pcdet.datasets``).
+def run_recording(rec, library: ModelLibrary, cfg: PipelineConfig, out, options: RunOptions | None = None, *,
+                  on_image: Callable[[FrameRef, DetectionResult | None, str | None], None] | None = None
+                  ) -> RunSummary:
+    """Detect in every frame of ``rec`` (any reader of ``pcdet.datasets``), writing into the folder ``out``:
+    ``frames/<scene>_<image>.json`` as each frame is done, then ``results.csv`` (BOP), ``config.toml`` (the
+    resolved pipeline) and ``failures.json``. ``options``: see ``RunOptions``.
 
-    targets : localise the objects the recording labels per frame (BOP scene_gt.json); needs labels.
     on_image(ref, result, error) : called after each frame (result None on error; not called for frames
-        skipped by ``resume``).
-    resume : keep frames whose JSON already exists in ``out`` and detect only the others.
-    workers : processes to spread frames over (1: this process); with Ray, the CPUs of a local instance.
-    executor : "local" (processes on this machine) or "ray" (tasks on the cluster at ``ray_address``, or on a
-        local Ray instance when that is None).
-
-    The ``time`` column of results.csv is -1 (BOP's "not measured") unless ``record_time``, so that the same
-    input, config and seed give a byte-identical file; per-stage times are always in the per-frame JSON."""
+        skipped by ``resume``)."""
+    opt = options or RunOptions()
     out = Path(out)
     (out / "frames").mkdir(parents=True, exist_ok=True)
     summary = RunSummary()
     todo = list(rec)
-    if resume:
+    if opt.resume:
         todo = [r for r in todo if not _readable_json(frame_json_path(out, r))]
         summary.resumed = len(rec) - len(todo)
     pipeline = cfg.to_dict()
-    for ref, result, err in _detect_all(rec, todo, library, cfg, targets, workers, executor, ray_address):
+    for ref, result, err in _detect_all(rec, todo, library, cfg, opt):
         if err is not None:
             summary.failed.append((describe(ref), err))
         else:
@@ -109,10 +129,10 @@ def run_recording(rec, library: ModelLibrary, cfg: PipelineConfig, out, targets:
             info = {"scene_id": ref.scene_id, "im_id": ref.im_id, "source": rec.source(ref)}
             if ref.timestamp is not None:
                 info["timestamp"] = ref.timestamp
-            write_detections_json(frame_json_path(out, ref), info, result, pipeline, version)
+            write_detections_json(frame_json_path(out, ref), info, result, pipeline, opt.version)
         if on_image:
             on_image(ref, result, err)
-    write_bop_csv(out / "results.csv", results_rows(out, list(rec), record_time))
+    write_results_csv(out / "results.csv", results_rows(out, list(rec), opt.record_time))
     atomic_write_text(out / "config.toml", dump_toml(cfg))
     atomic_write_text(out / "failures.json", json.dumps([{"image": a, "error": b} for a, b in summary.failed],
                                                         indent=1))
@@ -121,7 +141,7 @@ def run_recording(rec, library: ModelLibrary, cfg: PipelineConfig, out, targets:
 
 def _readable_json(path: Path) -> bool:
     try:
-        json.loads(path.read_text())
+        read_json(path)
         return True
     except (OSError, ValueError):
         return False
@@ -134,11 +154,8 @@ def results_rows(out: Path, refs: list[FrameRef], record_time: bool) -> list[lis
         p = frame_json_path(out, ref)
         if not p.is_file():
             continue
-        doc = json.loads(p.read_text())
+        doc = read_json(p)
         t = sum(doc["timing_s"].values()) if record_time else -1.0
-        for d in doc["detections"]:
-            R = " ".join(f"{v:.9f}" for row in d["T_cam_model"][:3] for v in row[:3])
-            tr = " ".join(f"{row[3] * 1000.0:.6f}" for row in d["T_cam_model"][:3])
-            rows.append([str(ref.scene_id), str(ref.im_id), str(d["obj_id"]), f"{d['score']:.6f}", R, tr,
-                         f"{t:.3f}"])
+        rows += [results_row(ref.scene_id, ref.im_id, d["obj_id"], d["score"], d["T_cam_model"], t)
+                 for d in doc["detections"]]
     return rows

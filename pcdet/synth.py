@@ -15,14 +15,16 @@ from typing import Callable
 import numpy as np
 from scipy.ndimage import maximum_filter, minimum_filter
 
+from .align import transform
 from .camera import Camera
 from .errors import InputError
 from .io.atomic import atomic_write_text
+from .io.bop import camera_pose_to_bop, camera_to_bop, pose_to_bop
 from .io.depth import write_depth_png, write_png
-from .model import ModelLibrary
+from .library import ModelLibrary
 from .render import render_meshes
 
-KINECT = Camera(572.4114, 573.57043, 325.2611, 242.04899, 640, 480, 0.001)
+KINECT = Camera(572.4114, 573.57043, 325.2611, 242.04899, 640, 480, 1.0)
 TABLE_HALF = 0.5  # m
 TABLE_THICKNESS = 0.02
 
@@ -148,7 +150,7 @@ def _place(verts: np.ndarray, T_st: np.ndarray, prob: np.ndarray, cfg: SynthConf
     for _ in range(200):
         k = rng.choice(len(T_st), p=prob)
         T = _rot_z(rng.uniform(0, 2 * np.pi)) @ T_st[k]
-        v = verts @ T[:3, :3].T + T[:3, 3]
+        v = transform(T, verts)
         T[2, 3] -= v[:, 2].min()  # rest on the table top
         c = (v[:, :2].max(0) + v[:, :2].min(0)) / 2
         r = float(np.linalg.norm(v[:, :2] - c, axis=1).max())
@@ -185,7 +187,7 @@ def compose_scene(lib: ModelLibrary, cfg: SynthConfig, rng: np.random.Generator,
     return placed, clutter
 
 
-def render_scene(lib, placed, T_world_cam, camera, rng, noise=True, clutter=()):
+def render_scene(lib, placed, T_world_cam, camera, rng, *, noise=True, clutter=()):
     """Render one view of the library objects ``placed`` and the distractors ``clutter`` (see
     ``compose_scene``): returns (raw depth uint16 mm, rgb uint8, gt list, gt_info list); ground truth covers
     ``placed`` only."""
@@ -207,8 +209,7 @@ def render_scene(lib, placed, T_world_cam, camera, rng, noise=True, clutter=()):
         all_px = alone.ids >= 0
         vis_px = (r.ids == k) & (raw > 0)
         n_all, n_vis = int(all_px.sum()), int(vis_px.sum())
-        gt.append({"cam_R_m2c": T_cm[:3, :3].reshape(-1).tolist(), "cam_t_m2c": (T_cm[:3, 3] * 1000).tolist(),
-                   "obj_id": int(lib[i].obj_id)})
+        gt.append({**pose_to_bop(T_cm), "obj_id": int(lib[i].obj_id)})
         info.append({"bbox_obj": _bbox(all_px), "bbox_visib": _bbox(vis_px), "px_count_all": n_all,
                      "px_count_valid": n_vis, "px_count_visib": n_vis,
                      "visib_fract": round(n_vis / n_all, 6) if n_all else 0.0})
@@ -283,12 +284,10 @@ def synthesize(lib: ModelLibrary, out, cfg: SynthConfig, camera: Camera = KINECT
         sdir = out / "test" / f"{s:06d}"
         cams, gts, infos = {}, {}, {}
         for k, T_world_cam in enumerate(camera_path(az, el, dist, target, cfg)):
-            raw, rgb, gt, info = render_scene(lib, placed, T_world_cam, camera, rng, cfg.noise, clutter)
+            raw, rgb, gt, info = render_scene(lib, placed, T_world_cam, camera, rng, noise=cfg.noise, clutter=clutter)
             write_depth_png(sdir / "depth" / f"{k:06d}.png", raw)
             write_png(sdir / "rgb" / f"{k:06d}.png", rgb)
-            T_cw = np.linalg.inv(T_world_cam)
-            cams[str(k)] = {"cam_K": camera.K.reshape(-1).tolist(), "depth_scale": 1.0,
-                            "cam_R_w2c": T_cw[:3, :3].reshape(-1).tolist(), "cam_t_w2c": (T_cw[:3, 3] * 1000).tolist()}
+            cams[str(k)] = {**camera_to_bop(camera.K, 1.0), **camera_pose_to_bop(T_world_cam)}
             gts[str(k)], infos[str(k)] = gt, info
         atomic_write_text(sdir / "scene_camera.json", json.dumps(cams, indent=1))
         atomic_write_text(sdir / "scene_gt.json", json.dumps(gts, indent=1))

@@ -15,19 +15,18 @@ Every track keeps its per-frame world pose estimate (corrected camera pose x obs
 """
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from .align import kabsch
-from .cloud import estimate_normals, voxel_downsample
+from .align import kabsch, transform
 from .detector import Detector
 from .frame import Frame
+from .io.atomic import atomic_write_text
 from .odometry import Odometry, OdometryConfig
-from .refine import icp
-from .verify import bbox_pixels, verify
 
 
 @dataclass(frozen=True)
@@ -110,7 +109,7 @@ class Tracker:
             mode = "track"
         if obs:
             T_wc = self._correct_camera(obs, T_wc)
-            self.odo.T = T_wc.copy()
+            self.odo.reset(T_wc)
         for tr, T_cm, score in obs:
             tr.frames.append(self.index)
             tr.poses.append(T_wc @ T_cm)
@@ -122,10 +121,11 @@ class Tracker:
         res = self.det.detect(frame)
         obs = []
         used: set[int] = set()
+        T_cam_input = np.linalg.inv(frame.T_input_cam)
         for d in res.detections:
-            mi = next(i for i, m in enumerate(self.det.library) if m.obj_id == d.obj_id)
+            mi = self.det.library.index_of(d.obj_id)
             m = self.det.library[mi]
-            T_cm = np.linalg.inv(frame.T_input_cam) @ d.T_cam_model
+            T_cm = T_cam_input @ d.T_cam_model
             T_wm = T_wc @ T_cm
             best, best_d = None, self.cfg.associate_distance * m.diameter
             for tr in self.tracks:
@@ -143,43 +143,26 @@ class Tracker:
         return obs
 
     def _track(self, frame: Frame, T_wc: np.ndarray) -> list[tuple[Track, np.ndarray, float]]:
-        cam, depth = frame.camera, frame.depth
-        cfg = self.det.config
         T_cw = np.linalg.inv(T_wc)
+        T_cam_input = np.linalg.inv(frame.T_input_cam)
         obs = []
         for tr in self.tracks:
-            m = self.det.library[tr.model_index]
-            T_pred = T_cw @ tr.T_world_model
-            P = m.points @ T_pred[:3, :3].T + T_pred[:3, 3]
-            if np.any(P[:, 2] <= 0.05):
-                continue
-            pix = bbox_pixels(cam, P, margin=8)
-            if pix is None or len(pix) < 25:
-                continue  # out of view: nothing to say about it here
-            z = depth.reshape(-1)[pix]
-            zmin, zmax = P[:, 2].min() - self.cfg.crop_margin, P[:, 2].max() + self.cfg.crop_margin
-            keep = (z > zmin) & (z < zmax)
-            if keep.sum() < 50:
+            r = self.det.refine(frame, tr.model_index, T_cw @ tr.T_world_model, depth_margin=self.cfg.crop_margin)
+            if not r.in_view:
+                continue  # nothing to say about it here
+            if r.detection is None or r.detection.score < self.cfg.min_score:
                 tr.lost = True
                 continue
-            S, _, _ = voxel_downsample(cam.backproject_pixels(pix[keep], z[keep]), cfg.preprocess.voxel, representatives=False)
-            N = estimate_normals(S, cfg.preprocess.normal_radius, cfg.preprocess.normal_max_nn)
-            src, src_n = self.det.icp_points[tr.model_index]
-            r = icp(src, S, N, T_pred, cfg.refine, src_n, cKDTree(S), np.zeros(3))
-            v_ = verify(m, r.T_target_source, depth, cam, cfg.verify, cfg.preprocess.voxel, stride=2)
-            if v_.score < self.cfg.min_score:
-                tr.lost = True
-                continue
-            obs.append((tr, r.T_target_source, float(v_.score)))
+            obs.append((tr, T_cam_input @ r.detection.T_cam_model, float(r.detection.score)))
         return obs
 
     def _correct_camera(self, obs, T_wc: np.ndarray) -> np.ndarray:
         """The camera pose that best maps the observed objects onto the map: Kabsch on their model samples."""
         src, dst = [], []
         for tr, T_cm, _ in obs:
-            p = self.det.icp_points[tr.model_index][0]
-            src.append(p @ T_cm[:3, :3].T + T_cm[:3, 3])
-            dst.append(p @ tr.T_world_model[:3, :3].T + tr.T_world_model[:3, 3])
+            p = self.det.models[tr.model_index].icp_points
+            src.append(transform(T_cm, p))
+            dst.append(transform(tr.T_world_model, p))
         src, dst = np.vstack(src), np.vstack(dst)
         if len(obs) == 1:
             # one object fixes the camera fully, but a symmetric one does not: keep the odometry unless it agrees
@@ -233,7 +216,18 @@ def _track_chunk(shared, refs) -> TrackingResult:
     return Tracker(Detector(library, cfg, workers=1), tcfg).run(_Scene(rec, refs))
 
 
-def track_recording(rec, library, cfg, tcfg: TrackingConfig | None = None, workers: int = 1,
+def write_tracks_json(path, rec, results: dict[int, TrackingResult], pipeline: dict, version: str) -> Path:
+    """``tracks.json``: per scene of ``rec``, its frames' image ids, tracks, camera poses and frame modes."""
+    scenes = []
+    for sid, r in results.items():
+        refs = [f for f in rec if f.scene_id == sid]
+        scenes.append({"scene_id": sid, "frames": [f.im_id for f in refs], **r.to_dict()})
+    doc = {"pcdet_version": version, "recording": str(rec.root), "format": rec.format, "scenes": scenes,
+           "pipeline": pipeline}
+    return atomic_write_text(path, json.dumps(doc, indent=1))
+
+
+def track_recording(rec, library, cfg, tcfg: TrackingConfig | None = None, *, workers: int = 1,
                     executor: str = "local", ray_address: str | None = None, on_frame=None
                     ) -> dict[int, TrackingResult]:
     """Track every scene of ``rec`` (a BOP dataset may hold several sequences; other readers hold one) on its
@@ -248,6 +242,6 @@ def track_recording(rec, library, cfg, tcfg: TrackingConfig | None = None, worke
     if executor == "local" and (workers <= 1 or len(scenes) < 2):
         return {sid: Tracker(Detector(library, cfg), tcfg).run(_Scene(rec, refs), on_frame)
                 for sid, refs in scenes.items()}
-    results = map_chunks(_track_chunk, (rec, library, cfg, tcfg), list(scenes.values()), workers, executor,
-                         ray_address)
+    results = map_chunks(_track_chunk, (rec, library, cfg, tcfg), list(scenes.values()), workers=workers,
+                         executor=executor, ray_address=ray_address)
     return dict(zip(scenes, results))

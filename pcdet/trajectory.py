@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .align import kabsch
+from .align import kabsch, transform
 
 
 def ate_rmse(est: list[np.ndarray], gt: list[np.ndarray]) -> float:
@@ -19,7 +19,7 @@ def ate_rmse(est: list[np.ndarray], gt: list[np.ndarray]) -> float:
         A[:3, 3] = (Q - P).mean(axis=0)
     else:
         A = kabsch(P, Q)
-    return float(np.sqrt(np.mean(np.sum((P @ A[:3, :3].T + A[:3, 3] - Q) ** 2, axis=1))))
+    return float(np.sqrt(np.mean(np.sum((transform(A, P) - Q) ** 2, axis=1))))
 
 
 def rpe(est: list[np.ndarray], gt: list[np.ndarray], delta: int = 1) -> tuple[float, float]:

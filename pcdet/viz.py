@@ -9,7 +9,7 @@ from PIL import Image, ImageDraw
 from scipy.ndimage import binary_dilation
 
 from .frame import Frame
-from .model import ModelLibrary
+from .library import ModelLibrary
 from .verify import render_model
 
 
@@ -45,7 +45,7 @@ def overlay(frame: Frame, detections, library: ModelLibrary, spacing: float = 0.
     labels = []
     for k, d in enumerate(detections):
         m = library.by_id(d.obj_id)
-        mask = render_model(m, T_cam_input @ d.T_cam_model, frame.camera, spacing) > 0
+        mask = render_model(m, T_cam_input @ d.T_cam_model, frame.camera, spacing=spacing) > 0
         if not mask.any():
             continue
         col = np.array(_colour(k), np.uint8)

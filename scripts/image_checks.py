@@ -13,6 +13,7 @@ from pcdet.image.hough import edge_map, hough_circles, hough_lines
 from pcdet.image.liu_wang import EXAMPLES
 from pcdet.image.transforms import apply
 
+
 def _fmt(v):
     return "?" if v is None else (v if isinstance(v, str) else f"{v:.2f}")
 

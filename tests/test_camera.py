@@ -15,19 +15,19 @@ def test_pcdet_layout_and_roundtrip(tmp_path):
     p.write_text(json.dumps({"fx": 500, "fy": 510, "cx": 320, "cy": 240, "width": 640, "height": 480}))
     cam = Camera.from_json(p)
     assert (cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height) == (500, 510, 320, 240, 640, 480)
-    assert cam.depth_scale == pytest.approx(0.001)  # default: 1 mm per raw unit
+    assert cam.depth_scale == 1.0 and cam.metres_per_unit == 0.001  # default: 1 mm per raw unit
 
 
 def test_bop_camera_json_depth_scale_in_mm(tmp_path):
     p = tmp_path / "camera.json"
     p.write_text(json.dumps({"fx": 572.4, "fy": 573.6, "cx": 325.3, "cy": 242.0, "width": 640, "height": 480,
                              "depth_scale": 0.1}))
-    assert Camera.from_json(p).depth_scale == pytest.approx(0.0001)  # 0.1 mm per unit
+    assert Camera.from_json(p).depth_scale == pytest.approx(0.1)  # 0.1 mm per unit
 
 
 def test_bop_scene_camera_and_open3d_layouts():
     cam = Camera.from_json(shared("ycbv_frame") / "test/000001/scene_camera.json", width=640, height=480)
-    assert cam.fx == pytest.approx(1066.778) and cam.depth_scale == pytest.approx(1e-4)
+    assert cam.fx == pytest.approx(1066.778) and cam.depth_scale == pytest.approx(0.1)
     o3d_cam = Camera.from_json(shared("open3d_rgbd") / "camera_primesense.json")
     assert (o3d_cam.fx, o3d_cam.cx, o3d_cam.cy) == (525.0, 319.5, 239.5)  # column-major matrix read right
 
@@ -63,3 +63,26 @@ def test_backproject_project_roundtrip(rng):
     np.testing.assert_allclose(uv[:, 0], u, atol=1e-6)
     np.testing.assert_allclose(uv[:, 1], v, atol=1e-6)
     np.testing.assert_allclose(pts[:, 2], depth.reshape(-1)[pix], rtol=1e-6)
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.1, 0.2])
+def test_depth_scale_round_trips_in_one_unit(tmp_path, scale):
+    """depth_scale is mm per raw unit in memory and in files: to_dict/from_dict and a JSON file give the same
+    camera back, and a raw value of 5000 is 5000 * scale mm."""
+    import json
+
+    cam = Camera(500.0, 501.0, 320.0, 240.0, 640, 480, scale)
+    assert Camera.from_dict(cam.to_dict()) == cam
+    (tmp_path / "c.json").write_text(json.dumps(cam.to_dict()))
+    assert Camera.from_json(tmp_path / "c.json") == cam
+    assert 5000 * cam.metres_per_unit == pytest.approx(5 * scale)
+
+
+def test_open3d_intrinsics_depth_scale_is_units_per_metre(tmp_path):
+    """Open3D's intrinsic JSON gives raw units per metre (1000 for mm): 1 mm per unit here."""
+    import json
+
+    (tmp_path / "o3d.json").write_text(json.dumps({"width": 640, "height": 480, "depth_scale": 5000.0,
+                                                   "intrinsic_matrix": [525, 0, 0, 0, 525, 0, 319.5, 239.5, 1]}))
+    cam = Camera.from_json(tmp_path / "o3d.json")
+    assert (cam.fx, cam.cx, cam.cy) == (525.0, 319.5, 239.5) and cam.depth_scale == pytest.approx(0.2)

@@ -104,17 +104,18 @@ def test_run_skips_a_corrupt_image_and_writes_the_rest(synth_small, tmp_path):
 
 
 def test_run_is_byte_identical_across_runs_workers_and_threads(synth_small, tmp_path):
-    """The same results.csv from one process (the detector's thread pool at the machine's cores, numpy's
-    threads at 1) and from two worker processes (one detector thread each, numpy's threads at 2)."""
+    """The same results.csv from one process with one detector thread (numpy's threads at 1), one process with
+    three detector threads (numpy's at 2), and two worker processes (one detector thread each)."""
     outs = []
-    for i, (workers, threads) in enumerate((("1", "1"), ("2", "2"))):
-        env = dict(os.environ, OMP_NUM_THREADS=threads, OPENBLAS_NUM_THREADS=threads)
+    for i, (workers, threads, blas) in enumerate((("1", "1", "1"), ("1", "3", "2"), ("2", "1", "2"))):
+        env = dict(os.environ, OMP_NUM_THREADS=blas, OPENBLAS_NUM_THREADS=blas)
         out = tmp_path / f"run{i}"
         p = subprocess.run([sys.executable, "-m", "pcdet.cli", "run", str(synth_small), "--out", str(out),
-                            "--seed", "3", "--workers", workers], env=env, capture_output=True, text=True)
+                            "--seed", "3", "--workers", workers, "--threads", threads], env=env, capture_output=True,
+                           text=True)
         assert p.returncode == 0, p.stderr
         outs.append((out / "results.csv").read_bytes())
-    assert outs[0] == outs[1] and outs[0].count(b"\n") > 3
+    assert outs[0] == outs[1] == outs[2] and outs[0].count(b"\n") > 3
 
 
 def test_eval_prints_and_writes_json(synth_small, tmp_path):
@@ -188,7 +189,7 @@ def test_register_bunny_cli(tmp_path):
     """The JSON holds T_target_source: it moves the bunny mesh onto scan bun000 within 5 mm (bun.conf's pose)."""
     from scipy.spatial.transform import Rotation
 
-    from pcdet.model import load_geometry
+    from pcdet.io.models import load_geometry
 
     d = shared("bunny")
     res = _cli("register", d / "bun_zipper_res3.ply", d / "bun000.ply", "--out", tmp_path / "T.json")

@@ -79,7 +79,7 @@ def test_tum_without_camera_file_uses_the_documented_default(tmp_path, sequence)
     _write_tum(tmp_path / "tum", open_recording(sequence))
     (tmp_path / "tum" / "camera.json").unlink()
     rec = open_recording(tmp_path / "tum")
-    assert (rec.camera.fx, rec.camera.cx, rec.camera.depth_scale) == (525.0, 319.5, 1 / 5000)
+    assert (rec.camera.fx, rec.camera.cx, rec.camera.depth_scale) == (525.0, 319.5, 0.2)
 
 
 def test_folder_and_cloud_readers(tmp_path, sequence):

@@ -2,7 +2,13 @@
 import numpy as np
 import pytest
 
-from pcdet.image.hough import GeneralizedHough, edge_map, hough_circles, hough_lines, vote_keypoint_matches
+from pcdet.image.hough import (
+    GeneralizedHough,
+    edge_map,
+    hough_circles,
+    hough_lines,
+    vote_keypoint_matches,
+)
 
 
 def _polygon(shape, lines):

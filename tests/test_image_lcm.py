@@ -10,6 +10,7 @@ import pytest
 from pcdet.image import ArticulatedModel, LinearCombination
 from pcdet.image.liu_wang import CLOSET_DOOR, CLOSET_MAIN, PYRAMID
 
+
 def _fit(views, pts):
     return LinearCombination().fit(views, pts)
 

@@ -7,35 +7,57 @@ import pytest
 
 from pcdet.errors import InputError
 from pcdet.io.atomic import atomic_write_bytes, atomic_write_text
+from pcdet.io.bop import (
+    camera_pose_from_bop,
+    camera_pose_to_bop,
+    pose_from_bop,
+    pose_to_bop,
+    read_results_csv,
+    results_row,
+    write_results_csv,
+)
 from pcdet.io.clouds import read_cloud
 from pcdet.io.jsonfile import read_json
-from pcdet.io.results import read_bop_csv, write_bop_csv
 
 from .conftest import random_pose, shared
 
 
 def test_bop_csv_round_trip(tmp_path, rng):
-    """Rows written with R row-major and t in mm come back as T_cam_model in metres."""
+    """A row written by results_row (R row-major, t in mm) comes back as T_cam_model in metres; the text is
+    BOP's: 9 numbers, then 3 in mm."""
     T = random_pose(rng)
-    R = " ".join(f"{v:.9f}" for v in T[:3, :3].reshape(-1))
-    t = " ".join(f"{v * 1000:.6f}" for v in T[:3, 3])
-    write_bop_csv(tmp_path / "r.csv", [["3", "7", "12", "0.5", R, t, "-1"]])
+    row = results_row(3, 7, 12, 0.5, T, -1)
+    assert row[4].split()[1] == f"{T[0, 1]:.9f}" and row[5].split()[2] == f"{T[2, 3] * 1000:.6f}"
+    write_results_csv(tmp_path / "r.csv", [row])
     assert (tmp_path / "r.csv").read_text().splitlines()[0] == "scene_id,im_id,obj_id,score,R,t,time"
-    (row,) = read_bop_csv(tmp_path / "r.csv")
-    assert (row["scene_id"], row["im_id"], row["obj_id"], row["score"], row["time"]) == (3, 7, 12, 0.5, -1.0)
-    np.testing.assert_allclose(row["T_cam_model"], T, atol=1e-9)
+    (back,) = read_results_csv(tmp_path / "r.csv")
+    assert (back["scene_id"], back["im_id"], back["obj_id"], back["score"], back["time"]) == (3, 7, 12, 0.5, -1.0)
+    np.testing.assert_allclose(back["T_cam_model"], T, atol=1e-9)
+
+
+def test_bop_pose_entries_round_trip(rng):
+    """Object poses keep R row-major and t in mm; camera poses are stored world-to-camera (BOP's cam_R_w2c)."""
+    T = random_pose(rng)
+    e = pose_to_bop(T)
+    assert e["cam_R_m2c"][1] == T[0, 1] and e["cam_t_m2c"][2] == pytest.approx(T[2, 3] * 1000)
+    np.testing.assert_allclose(pose_from_bop(e), T, atol=1e-12)
+    c = camera_pose_to_bop(T)
+    T_cw = np.linalg.inv(T)
+    assert c["cam_t_w2c"][0] == pytest.approx(T_cw[0, 3] * 1000)
+    np.testing.assert_allclose(camera_pose_from_bop(c), T, atol=1e-12)
 
 
 def test_bop_csv_errors_name_the_file_and_line(tmp_path):
     p = tmp_path / "r.csv"
-    p.write_text("scene_id,im_id,obj_id,score,R,t,time\n1,0,1,0.5,1 0 0 0 1 0 0 0 1,0 0 500,-1\n1,0,1,x,1 0 0,0 0 1,-1\n")
+    p.write_text("scene_id,im_id,obj_id,score,R,t,time\n1,0,1,0.5,1 0 0 0 1 0 0 0 1,0 0 500,-1\n"
+                 "1,0,1,x,1 0 0,0 0 1,-1\n")
     with pytest.raises(InputError, match=r"r\.csv: line 3: malformed row"):
-        read_bop_csv(p)
+        read_results_csv(p)
     p.write_text("scene_id,im_id,score\n")
     with pytest.raises(InputError, match=r"lacks column\(s\) \['R', 'obj_id', 't'\]"):
-        read_bop_csv(p)
+        read_results_csv(p)
     with pytest.raises(FileNotFoundError, match="nope.csv"):
-        read_bop_csv(tmp_path / "nope.csv")
+        read_results_csv(tmp_path / "nope.csv")
 
 
 def test_clouds_xyz_with_normals_and_nan_rows(tmp_path):
@@ -77,10 +99,10 @@ def test_read_json_names_the_file(tmp_path):
     (tmp_path / "a.json").write_text('{"x": 1}')
     assert read_json(tmp_path / "a.json") == {"x": 1}
     (tmp_path / "b.json").write_text("{x: 1")
-    with pytest.raises(InputError, match=r"b\.json: not valid JSON"):
+    with pytest.raises(InputError, match=r"b\.json: file is not valid JSON"):
         read_json(tmp_path / "b.json")
     (tmp_path / "c.json").write_text(json.dumps([1, 2]))
-    with pytest.raises(InputError, match=r"c\.json: expected a JSON object"):
+    with pytest.raises(InputError, match=r"c\.json: file must hold a JSON object"):
         read_json(tmp_path / "c.json")
     assert read_json(tmp_path / "c.json", expect_object=False) == [1, 2]
     with pytest.raises(FileNotFoundError, match=r"d\.json"):

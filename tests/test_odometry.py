@@ -6,7 +6,12 @@ from scipy.spatial.transform import Rotation
 from pcdet.datasets import open_recording
 from pcdet.odometry import OdometryConfig, odometry
 from pcdet.synth import SynthConfig, synthesize
-from pcdet.trajectory import ate_rmse, constant_velocity_baseline, identity_baseline, rpe
+from pcdet.trajectory import (
+    ate_rmse,
+    constant_velocity_baseline,
+    identity_baseline,
+    rpe,
+)
 
 
 def _traj(n=10, seed=0):

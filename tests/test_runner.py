@@ -11,7 +11,7 @@ import pytest
 
 from pcdet.datasets import open_recording
 from pcdet.io.depth import write_depth_png
-from pcdet.runner import run_recording
+from pcdet.runner import RunOptions, run_recording
 from pcdet.synth import SynthConfig, synthesize
 
 
@@ -54,7 +54,7 @@ def test_killed_run_resumed_gives_the_same_results(recording, uninterrupted, tmp
 def test_two_worker_processes_give_the_same_results(recording, uninterrupted, library, tmp_path):
     from pcdet.config import PipelineConfig
 
-    s = run_recording(open_recording(recording), library, PipelineConfig(), tmp_path, workers=2)
+    s = run_recording(open_recording(recording), library, PipelineConfig(), tmp_path, RunOptions(workers=2))
     assert s.images == 6
     assert (tmp_path / "results.csv").read_bytes() == uninterrupted
 
@@ -93,7 +93,8 @@ def test_ray_executor_gives_the_same_results(recording, uninterrupted, library, 
     pytest.importorskip("ray")
     from pcdet.config import PipelineConfig
 
-    s = run_recording(open_recording(recording), library, PipelineConfig(), tmp_path, workers=2, executor="ray")
+    s = run_recording(open_recording(recording), library, PipelineConfig(), tmp_path,
+                      RunOptions(workers=2, executor="ray"))
     assert s.images == 6
     assert (tmp_path / "results.csv").read_bytes() == uninterrupted
 

@@ -15,7 +15,7 @@ def test_overlay_tints_exactly_the_silhouette(synth_small, library):
     m = library.by_id(g["obj_id"])
     det = Detection(m.name, m.obj_id, 0.9, g["T_cam_model"], 10, 1.0, 0.001, 0.8)
     pic = overlay(f, [det], library)
-    mask = render_model(m, g["T_cam_model"], f.camera, 0.004) > 0
+    mask = render_model(m, g["T_cam_model"], f.camera) > 0
     dimmed = (f.rgb.astype(np.float32) * 0.6).astype(np.uint8)
     changed = np.any(pic != dimmed, axis=2)
     assert pic.shape == f.rgb.shape and pic.dtype == np.uint8

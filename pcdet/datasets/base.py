@@ -78,10 +78,6 @@ class SequenceBase:
     def camera_poses(self) -> dict[FrameRef, np.ndarray] | None:
         return None
 
-    def frames(self) -> Iterator[tuple[FrameRef, Frame]]:
-        for ref in self.images:
-            yield ref, self.frame(ref)
-
 
 def quaternion_pose(t: np.ndarray, q_xyzw: np.ndarray) -> np.ndarray:
     """4x4 pose from a translation (3,) and a unit quaternion (x, y, z, w)."""

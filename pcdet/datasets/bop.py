@@ -9,19 +9,11 @@ import numpy as np
 from ..camera import Camera
 from ..errors import InputError
 from ..frame import Frame
+from ..io.bop import camera_pose_from_bop, pose_from_bop
 from ..io.jsonfile import read_json
 from .base import FrameRef
 
-
 BopImage = FrameRef  # one image of a BOP split: (scene_id, im_id)
-
-
-def pose_from_bop(entry: dict) -> np.ndarray:
-    """4x4 ``T_cam_model`` in metres from a BOP ``cam_R_m2c`` / ``cam_t_m2c`` (mm) entry."""
-    T = np.eye(4)
-    T[:3, :3] = np.asarray(entry["cam_R_m2c"], float).reshape(3, 3)
-    T[:3, 3] = np.asarray(entry["cam_t_m2c"], float) / 1000.0
-    return T
 
 
 class BopDataset:
@@ -75,10 +67,7 @@ class BopDataset:
             e = self._scene_json(img.scene_id, "scene_camera.json").get(str(img.im_id), {})
             if "cam_R_w2c" not in e or "cam_t_w2c" not in e:
                 return None
-            T = np.eye(4)
-            T[:3, :3] = np.asarray(e["cam_R_w2c"], float).reshape(3, 3)
-            T[:3, 3] = np.asarray(e["cam_t_w2c"], float) / 1000.0
-            poses[img] = np.linalg.inv(T)
+            poses[img] = camera_pose_from_bop(e)
         return poses
 
     def __iter__(self):

@@ -3,13 +3,13 @@ camera JSON (``intrinsic_matrix``), and optionally camera poses in the log forma
 ``odometry.log``: three integers per frame, then the 4x4 ``T_world_cam``)."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from ..camera import Camera
 from ..errors import InputError
+from ..io.jsonfile import read_json
 from .folder import FolderRecording
 
 LOG_NAMES = ("trajectory.log", "odometry.log")
@@ -34,9 +34,9 @@ def read_log(path: Path) -> list[np.ndarray]:
 def _intrinsic_json(root: Path) -> Path | None:
     for p in sorted(root.glob("*.json")):
         try:
-            if "intrinsic_matrix" in json.loads(p.read_text()):
+            if "intrinsic_matrix" in read_json(p):
                 return p
-        except (json.JSONDecodeError, UnicodeDecodeError, TypeError):
+        except InputError:  # some other JSON file: not the intrinsics
             continue
     return None
 

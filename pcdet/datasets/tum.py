@@ -17,7 +17,7 @@ from ..errors import InputError
 from ..frame import Frame
 from .base import FrameRef, SequenceBase, quaternion_pose
 
-TUM_DEFAULT = Camera(525.0, 525.0, 319.5, 239.5, 640, 480, 1.0 / 5000.0)
+TUM_DEFAULT = Camera(525.0, 525.0, 319.5, 239.5, 640, 480, 0.2)  # 5000 units per metre
 
 
 def read_stamped(path: Path, columns: int) -> list[tuple[float, list[str]]]:

@@ -8,6 +8,8 @@ from typing import Optional
 import numpy as np
 import typer
 
+from ..console import guard
+from ..errors import InputError
 from ..io.jsonfile import read_json
 
 image_app = typer.Typer(no_args_is_help=True, help="Recognition from 2D views: LCM, Hough, homographies.")
@@ -42,9 +44,7 @@ def lcm(views_json: Path = typer.Argument(..., help="JSON: views, points, check,
     "thresholds": [0.2, 0.6]}; an articulated object: {"parts": {"main": {...}, "door": {...}}, "thresholds":
     [...]}, matching only if every part matches.
     """
-    from ..cli import _guard
-
-    @_guard
+    @guard
     def go():
         doc = read_json(views_json)
         thresholds = [float(t) for t in doc.get("thresholds", [0.2])]
@@ -79,18 +79,15 @@ def hough(image: Path = typer.Argument(..., help="Image file (PNG, JPEG, ...).")
           magnitude: bool = typer.Option(False, help="Lines: weigh votes by gradient magnitude."),
           ):
     """Hough lines (x cos t - y sin t = d) or circles; prints them and draws them on the image."""
-    from ..cli import _guard
-
-    @_guard
+    @guard
     def go():
         from PIL import Image, UnidentifiedImageError
 
-        from ..errors import InputError
         from ..io.depth import write_png
         from .hough import hough_circles, hough_lines
 
         if shape not in ("lines", "circles"):
-            raise ValueError(f"--shape takes lines or circles, got {shape!r}")
+            raise InputError(f"--shape takes lines or circles, got {shape!r}")
         if not image.is_file():
             raise FileNotFoundError(f"{image}: image not found")
         try:
@@ -127,9 +124,7 @@ def homography(matches_json: Path = typer.Argument(..., help='JSON: {"src": [[x,
                out: Optional[Path] = typer.Option(None, help="JSON to write H, inliers and residuals to."),
                ):
     """Homography (normalised DLT, h33 = 1) or affine map from point matches, with RANSAC and residuals."""
-    from ..cli import _guard
-
-    @_guard
+    @guard
     def go():
         from ..io.atomic import atomic_write_text
         from .transforms import ransac_affine, ransac_homography

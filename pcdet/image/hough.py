@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from ..errors import InputError
+
 
 def gradients(image) -> tuple[np.ndarray, np.ndarray]:
     """Sobel gradients (gx, gy) of a grey image (float); colour images are averaged to grey first."""
@@ -23,7 +25,7 @@ def gradients(image) -> tuple[np.ndarray, np.ndarray]:
     if im.ndim == 3:
         im = im[..., :3].mean(axis=2)
     if im.ndim != 2 or min(im.shape) < 3:
-        raise ValueError(f"expected a 2D image of at least 3x3 pixels, got shape {np.shape(image)}")
+        raise InputError(f"expected a 2D image of at least 3x3 pixels, got shape {np.shape(image)}")
     return ndimage.sobel(im, axis=1), ndimage.sobel(im, axis=0)
 
 
@@ -70,7 +72,7 @@ class Line:
         return np.array([foot - along * length / 2, foot + along * length / 2])
 
 
-def hough_lines(image, d_res: float = 1.0, theta_res_deg: float = 1.0, threshold: float = 0.2,
+def hough_lines(image, *, d_res: float = 1.0, theta_res_deg: float = 1.0, threshold: float = 0.2,
                 min_votes: float | None = None, max_lines: int = 20, use_orientation: bool = False,
                 orientation_window_deg: float = 10.0, weight_by_magnitude: bool = False,
                 edges: np.ndarray | None = None, refine: bool = True, min_distance: float = 9.0,
@@ -86,7 +88,7 @@ def hough_lines(image, d_res: float = 1.0, theta_res_deg: float = 1.0, threshold
     e, gx, gy = edge_map(image, threshold)
     if edges is not None:
         if np.shape(edges) != e.shape:
-            raise ValueError(f"edges is {np.shape(edges)}, the image {e.shape}")
+            raise InputError(f"edges is {np.shape(edges)}, the image {e.shape}")
         e = np.asarray(edges, bool)
     ys, xs = np.nonzero(e)
     H, W = e.shape
@@ -134,7 +136,7 @@ class Circle:
     votes: float
 
 
-def hough_circles(image, radii, threshold: float = 0.2, min_votes: float | None = None, max_circles: int = 50,
+def hough_circles(image, radii, *, threshold: float = 0.2, min_votes: float | None = None, max_circles: int = 50,
                   edges: np.ndarray | None = None, min_separation: float | None = None) -> list[Circle]:
     """Circles of the given ``radii`` (pixels), strongest first. Each edge pixel votes for the two centres along
     its gradient direction at each radius. A candidate's score is the votes within two pixels of its centre
@@ -190,7 +192,7 @@ class GeneralizedHough:
         e, gx, gy = edge_map(template, threshold)
         ys, xs = np.nonzero(e)
         if len(xs) < 3:
-            raise ValueError("the template has no edges")
+            raise InputError("the template has no edges")
         self.bins = orientation_bins
         self.reference = np.array([(e.shape[1] - 1) / 2, (e.shape[0] - 1) / 2])
         off = self.reference - np.column_stack([xs, ys])
@@ -239,7 +241,7 @@ class GeneralizedHough:
         return kept[:max_found]
 
 
-def vote_keypoint_matches(model_kp, scene_kp, reference, xy_bin: float = 16.0, rot_bin_deg: float = 30.0,
+def vote_keypoint_matches(model_kp, scene_kp, reference, *, xy_bin: float = 16.0, rot_bin_deg: float = 30.0,
                           scale_base: float = 2.0, min_votes: int = 3) -> list[tuple[np.ndarray, np.ndarray]]:
     """Hough voting of oriented keypoint matches (Lowe 2004) over translation, scale and rotation.
 
@@ -251,7 +253,7 @@ def vote_keypoint_matches(model_kp, scene_kp, reference, xy_bin: float = 16.0, r
     with at least ``min_votes`` distinct matches, largest first; the pose is the members' median."""
     m, s = np.asarray(model_kp, float), np.asarray(scene_kp, float)
     if m.shape != s.shape or m.ndim != 2 or m.shape[1] != 4:
-        raise ValueError(f"model_kp and scene_kp must both be (M, 4), got {m.shape} and {s.shape}")
+        raise InputError(f"model_kp and scene_kp must both be (M, 4), got {m.shape} and {s.shape}")
     rot = (s[:, 3] - m[:, 3]) % 360.0
     scale = s[:, 2] / m[:, 2]
     c, sn = np.cos(np.radians(rot)), np.sin(np.radians(rot))

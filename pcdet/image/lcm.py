@@ -17,13 +17,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import InputError
+
 
 def _as_points(a, name: str) -> np.ndarray:
     a = np.asarray(a, float)
     if a.ndim != 2 or a.shape[1] != 2:
-        raise ValueError(f"{name} must be an (N, 2) array of image points, got shape {a.shape}")
+        raise InputError(f"{name} must be an (N, 2) array of image points, got shape {a.shape}")
     if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} holds NaN or infinite coordinates")
+        raise InputError(f"{name} holds NaN or infinite coordinates")
     return a
 
 
@@ -51,19 +53,19 @@ class LinearCombination:
         views = [_as_points(v, f"views[{i}]") for i, v in enumerate(views)]
         pts = _as_points(points, "points")
         if len(views) < 3:
-            raise ValueError(f"the linear combination method needs at least 3 model views, got {len(views)}")
+            raise InputError(f"the linear combination method needs at least 3 model views, got {len(views)}")
         n = len(pts)
         if any(len(v) != n for v in views):
-            raise ValueError(f"every view needs the same {n} points as the unknown image, got "
+            raise InputError(f"every view needs the same {n} points as the unknown image, got "
                              f"{[len(v) for v in views]}")
         if n < len(views) + 1:
-            raise ValueError(f"{len(views) + 1} corresponding points are needed for {len(views)} views, got {n}")
+            raise InputError(f"{len(views) + 1} corresponding points are needed for {len(views)} views, got {n}")
         coefs, ranks = [], []
         for c, axis in ((0, "x"), (1, "y")):
             A = np.column_stack([v[:, c] for v in views] + [np.ones(n)])
             ranks.append(int(np.linalg.matrix_rank(A)))
             if ranks[-1] < A.shape[1] and not allow_degenerate:
-                raise ValueError(f"the model points' {axis} coordinates are linearly dependent across the views "
+                raise InputError(f"the model points' {axis} coordinates are linearly dependent across the views "
                                  f"(rank {ranks[-1]} of {A.shape[1]}): the {axis} coefficients are not unique")
             coefs.append(np.linalg.lstsq(A, pts[:, c], rcond=None)[0])
         self.coef_x, self.coef_y = coefs
@@ -78,7 +80,7 @@ class LinearCombination:
             raise RuntimeError("fit() first")
         vp = [_as_points(v, f"view_points[{i}]") for i, v in enumerate(view_points)]
         if len(vp) != self.n_views:
-            raise ValueError(f"fitted with {self.n_views} views, got {len(vp)}")
+            raise InputError(f"fitted with {self.n_views} views, got {len(vp)}")
         X = np.column_stack([v[:, 0] for v in vp] + [np.ones(len(vp[0]))])
         Y = np.column_stack([v[:, 1] for v in vp] + [np.ones(len(vp[0]))])
         return np.column_stack([X @ self.coef_x, Y @ self.coef_y])
@@ -102,7 +104,7 @@ class ArticulatedModel:
         """One ``LinearCombination`` per part from the unknown image's points of that part."""
         missing = set(self.parts) - set(points)
         if missing:
-            raise ValueError(f"no points for part(s) {sorted(missing)}")
+            raise InputError(f"no points for part(s) {sorted(missing)}")
         return {name: LinearCombination().fit(views, points[name], allow_degenerate)
                 for name, views in self.parts.items()}
 

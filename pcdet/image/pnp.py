@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import Camera
+from ..errors import DependencyError, InputError
 
 
 @dataclass
@@ -18,27 +19,27 @@ class PnPResult:
     rmse_px: float
 
 
-def solve_pnp(object_points, image_points, camera: Camera | np.ndarray, reprojection_error: float = 2.0,
+def solve_pnp(object_points, image_points, camera: Camera | np.ndarray, *, reprojection_error: float = 2.0,
               iterations: int = 1000, confidence: float = 0.999, seed: int = 0) -> PnPResult:
     """object_points : (N, 3) model points (m); image_points : (N, 2) their pixels (u, v); camera : a ``Camera``
     or a 3x3 K (no distortion). Needs N >= 4; ``ValueError`` when no pose has 4 inliers."""
     try:
         import cv2
     except ImportError:
-        raise RuntimeError("PnP needs OpenCV: pip install 'pcdet[cv]'") from None
+        raise DependencyError("PnP needs OpenCV: pip install 'pcdet[cv]'") from None
     X = np.ascontiguousarray(object_points, np.float64)
     u = np.ascontiguousarray(image_points, np.float64)
     if X.ndim != 2 or X.shape[1] != 3 or u.shape != (len(X), 2):
-        raise ValueError(f"need (N, 3) object points and (N, 2) image points, got {X.shape} and {u.shape}")
+        raise InputError(f"need (N, 3) object points and (N, 2) image points, got {X.shape} and {u.shape}")
     if len(X) < 4:
-        raise ValueError(f"PnP needs at least 4 matches, got {len(X)}")
+        raise InputError(f"PnP needs at least 4 matches, got {len(X)}")
     K = camera.K if isinstance(camera, Camera) else np.asarray(camera, float).reshape(3, 3)
     cv2.setRNGSeed(seed)
     ok, rvec, tvec, inl = cv2.solvePnPRansac(X, u, K, None, iterationsCount=iterations,
                                              reprojectionError=reprojection_error, confidence=confidence,
                                              flags=cv2.SOLVEPNP_EPNP)
     if not ok or inl is None or len(inl) < 4:
-        raise ValueError(f"no pose with 4 or more matches within {reprojection_error} px")
+        raise InputError(f"no pose with 4 or more matches within {reprojection_error} px")
     mask = np.zeros(len(X), bool)
     mask[inl.ravel()] = True
     rvec, tvec = cv2.solvePnPRefineLM(X[mask], u[mask], K, None, rvec, tvec)

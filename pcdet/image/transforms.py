@@ -9,11 +9,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
+
 
 def _pts(a, name) -> np.ndarray:
     a = np.asarray(a, float)
     if a.ndim != 2 or a.shape[1] != 2:
-        raise ValueError(f"{name} must be (N, 2), got shape {a.shape}")
+        raise InputError(f"{name} must be (N, 2), got shape {a.shape}")
     return a
 
 
@@ -28,12 +30,12 @@ def fit_affine(src, dst) -> np.ndarray:
     linear equations in the six unknowns a11 a12 tx a21 a22 ty."""
     src, dst = _pts(src, "src"), _pts(dst, "dst")
     if len(src) != len(dst) or len(src) < 3:
-        raise ValueError(f"an affine map needs >= 3 correspondences, got {len(src)} and {len(dst)}")
+        raise InputError(f"an affine map needs >= 3 correspondences, got {len(src)} and {len(dst)}")
     A = np.zeros((2 * len(src), 6))
     A[0::2, 0:2], A[0::2, 2] = src, 1
     A[1::2, 3:5], A[1::2, 5] = src, 1
     if np.linalg.matrix_rank(A) < 6:
-        raise ValueError("the source points are collinear: the affine map is not determined")
+        raise InputError("the source points are collinear: the affine map is not determined")
     p = np.linalg.lstsq(A, dst.reshape(-1), rcond=None)[0]
     return np.array([[p[0], p[1], p[2]], [p[3], p[4], p[5]], [0.0, 0.0, 1.0]])
 
@@ -51,7 +53,7 @@ def fit_homography(src, dst) -> np.ndarray:
     sets normalised, the 2N x 9 system solved by SVD, the result denormalised and scaled to h33 = 1."""
     src, dst = _pts(src, "src"), _pts(dst, "dst")
     if len(src) != len(dst) or len(src) < 4:
-        raise ValueError(f"a homography needs >= 4 correspondences, got {len(src)} and {len(dst)}")
+        raise InputError(f"a homography needs >= 4 correspondences, got {len(src)} and {len(dst)}")
     Ts, Td = _normaliser(src), _normaliser(dst)
     s = src @ Ts[:2, :2].T + Ts[:2, 2]
     d = dst @ Td[:2, :2].T + Td[:2, 2]
@@ -63,11 +65,11 @@ def fit_homography(src, dst) -> np.ndarray:
     A[1::2, 6:8], A[1::2, 8] = -d[:, 1:] * s, -d[:, 1]
     _, sv, Vt = np.linalg.svd(A)
     if n >= 4 and sv[7] < 1e-10 * sv[0]:
-        raise ValueError("degenerate correspondences (three or more collinear): the homography is not determined")
+        raise InputError("degenerate correspondences (three or more collinear): the homography is not determined")
     Hn = Vt[-1].reshape(3, 3)
     H = np.linalg.inv(Td) @ Hn @ Ts
     if abs(H[2, 2]) < 1e-12:
-        raise ValueError("h33 is zero: the homography maps the origin to infinity and cannot be scaled to h33 = 1")
+        raise InputError("h33 is zero: the homography maps the origin to infinity and cannot be scaled to h33 = 1")
     return H / H[2, 2]
 
 
@@ -83,12 +85,12 @@ class RansacResult:
     iterations: int
 
 
-def _ransac(fit, k: int, src, dst, threshold: float, iterations: int, seed: int, confidence: float
+def _ransac(fit, k: int, src, dst, threshold: float, *, iterations: int, seed: int, confidence: float
             ) -> RansacResult:
     src, dst = _pts(src, "src"), _pts(dst, "dst")
     n = len(src)
     if n < k or len(dst) != n:
-        raise ValueError(f"need >= {k} correspondences of equal count, got {n} and {len(dst)}")
+        raise InputError(f"need >= {k} correspondences of equal count, got {n} and {len(dst)}")
     rng = np.random.default_rng(seed)
     best = np.zeros(n, bool)
     it, need = 0, iterations
@@ -108,7 +110,7 @@ def _ransac(fit, k: int, src, dst, threshold: float, iterations: int, seed: int,
             # adaptive stopping: draws needed to see one all-inlier sample with the given confidence
             need = int(np.ceil(np.log(1 - confidence) / np.log(max(1 - w ** k, 1e-12)))) if w < 1 else it
     if best.sum() < k:
-        raise ValueError(f"RANSAC found no model with {k} inliers within {threshold} px")
+        raise InputError(f"RANSAC found no model with {k} inliers within {threshold} px")
     for _ in range(3):  # refit on the inliers, then re-collect them
         H = fit(src[best], dst[best])
         r = np.linalg.norm(apply(H, src) - dst, axis=1)
@@ -122,10 +124,11 @@ def _ransac(fit, k: int, src, dst, threshold: float, iterations: int, seed: int,
 def ransac_affine(src, dst, threshold: float = 2.0, iterations: int = 2000, seed: int = 0,
                   confidence: float = 0.999) -> RansacResult:
     """Affine map robust to outlier correspondences (3-point samples, inliers within ``threshold`` px)."""
-    return _ransac(fit_affine, 3, src, dst, threshold, iterations, seed, confidence)
+    return _ransac(fit_affine, 3, src, dst, threshold, iterations=iterations, seed=seed, confidence=confidence)
 
 
 def ransac_homography(src, dst, threshold: float = 2.0, iterations: int = 2000, seed: int = 0,
                       confidence: float = 0.999) -> RansacResult:
     """Homography robust to outlier correspondences (4-point samples, inliers within ``threshold`` px)."""
-    return _ransac(fit_homography, 4, src, dst, threshold, iterations, seed, confidence)
+    return _ransac(fit_homography, 4, src, dst, threshold, iterations=iterations, seed=seed,
+                   confidence=confidence)

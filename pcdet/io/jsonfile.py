@@ -7,16 +7,17 @@ from pathlib import Path
 from ..errors import InputError
 
 
-def read_json(path, expect_object: bool = True):
+def read_json(path, expect_object: bool = True, what: str = "file"):
     """The parsed contents of ``path``: ``FileNotFoundError`` when it is missing, ``InputError`` (naming the
-    file) when it is not valid JSON or, with ``expect_object``, not a JSON object."""
+    file) when it is not valid JSON or, with ``expect_object``, not a JSON object. ``what`` names the kind of
+    file in the messages ("camera file", say)."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: file not found")
+        raise FileNotFoundError(f"{path}: {what} not found")
     try:
         doc = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(f"not valid JSON ({e})", path) from None
+        raise InputError(f"{what} is not valid JSON ({e})", path) from None
     if expect_object and not isinstance(doc, dict):
-        raise InputError("expected a JSON object", path)
+        raise InputError(f"{what} must hold a JSON object", path)
     return doc

@@ -1,0 +1,92 @@
+"""The BOP formats in one place, each reader beside its writer (as bop_toolkit's ``inout`` pairs them):
+object poses (``cam_R_m2c`` row-major, ``cam_t_m2c`` in mm), camera poses (``cam_R_w2c``, ``cam_t_w2c``: the
+world-to-camera transform, mm), camera entries (``cam_K`` row-major, ``depth_scale`` in mm per raw unit) and
+the results CSV (``scene_id,im_id,obj_id,score,R,t,time``: R row-major, t in mm, time in s or -1).
+Inside pcdet every pose is a 4 x 4 matrix in metres named by its frames.
+"""
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .atomic import atomic_write_text
+
+RESULTS_HEADER = ["scene_id", "im_id", "obj_id", "score", "R", "t", "time"]
+
+
+def _rt(R, t_mm) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(R, float).reshape(3, 3)
+    T[:3, 3] = np.asarray(t_mm, float) / 1000.0
+    return T
+
+
+def pose_to_bop(T_cam_model: np.ndarray) -> dict:
+    """``{"cam_R_m2c": [9], "cam_t_m2c": [3] mm}`` of a (4, 4) pose in metres."""
+    return {"cam_R_m2c": T_cam_model[:3, :3].reshape(-1).tolist(), "cam_t_m2c": (T_cam_model[:3, 3] * 1000).tolist()}
+
+
+def pose_from_bop(entry: dict) -> np.ndarray:
+    """(4, 4) ``T_cam_model`` in metres from a ``cam_R_m2c`` / ``cam_t_m2c`` (mm) entry."""
+    return _rt(entry["cam_R_m2c"], entry["cam_t_m2c"])
+
+
+def camera_pose_to_bop(T_world_cam: np.ndarray) -> dict:
+    """``{"cam_R_w2c", "cam_t_w2c" (mm)}``: BOP stores the world-to-camera transform, the inverse of
+    ``T_world_cam``."""
+    T_cw = np.linalg.inv(T_world_cam)
+    return {"cam_R_w2c": T_cw[:3, :3].reshape(-1).tolist(), "cam_t_w2c": (T_cw[:3, 3] * 1000).tolist()}
+
+
+def camera_pose_from_bop(entry: dict) -> np.ndarray:
+    """(4, 4) ``T_world_cam`` in metres from a ``cam_R_w2c`` / ``cam_t_w2c`` (mm) entry."""
+    return np.linalg.inv(_rt(entry["cam_R_w2c"], entry["cam_t_w2c"]))
+
+
+def camera_to_bop(K: np.ndarray, depth_scale: float) -> dict:
+    """A ``scene_camera.json`` entry: ``cam_K`` (3 x 3, row-major) and ``depth_scale`` (mm per raw unit)."""
+    return {"cam_K": np.asarray(K, float).reshape(-1).tolist(), "depth_scale": float(depth_scale)}
+
+
+def results_row(scene_id: int, im_id: int, obj_id: int, score: float, T_cam_model, time_s: float) -> list[str]:
+    """One results CSV row: R row-major to 9 decimals, t in mm to 6, score to 6, time (s) to 3."""
+    T = np.asarray(T_cam_model, float)
+    R = " ".join(f"{v:.9f}" for v in T[:3, :3].reshape(-1))
+    t = " ".join(f"{v * 1000.0:.6f}" for v in T[:3, 3])
+    return [str(scene_id), str(im_id), str(obj_id), f"{score:.6f}", R, t, f"{time_s:.3f}"]
+
+
+def write_results_csv(path, rows: list[list[str]]) -> Path:
+    """The header and ``rows`` (as ``results_row`` makes them), written atomically."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(RESULTS_HEADER)
+    w.writerows(rows)
+    return atomic_write_text(path, buf.getvalue())
+
+
+def read_results_csv(path) -> list[dict]:
+    """Rows as dicts with ``scene_id, im_id, obj_id, score, T_cam_model (4, 4, m), time``."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: results file not found")
+    out = []
+    with open(path, newline="") as f:
+        r = csv.DictReader(f)
+        missing = set(RESULTS_HEADER[:6]) - set(r.fieldnames or [])
+        if missing:
+            raise InputError(f"BOP results CSV lacks column(s) {sorted(missing)}", path)
+        for n, row in enumerate(r, start=2):
+            try:
+                out.append({"scene_id": int(row["scene_id"]), "im_id": int(row["im_id"]),
+                            "obj_id": int(row["obj_id"]), "score": float(row["score"]),
+                            "T_cam_model": _rt(np.array(row["R"].split(), float).reshape(3, 3),
+                                               np.array(row["t"].split(), float)),
+                            "time": float(row.get("time") or -1)})
+            except (ValueError, TypeError) as e:
+                raise InputError(f"line {n}: malformed row ({e})", path) from None
+    return out
