@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -13,10 +12,7 @@ from .cloud import diameter as cloud_diameter
 from .cloud import estimate_normals, outward_normals, voxel_downsample
 from .errors import InputError
 from .io.models import load_geometry
-from .model_views import view_features
-
-if TYPE_CHECKING:
-    from .config import PipelineConfig
+from .model_views import DescriptorParams, view_features
 
 
 @dataclass
@@ -58,7 +54,7 @@ class ObjectModel:
                 f"{len(self.points)} samples, {len(self.kp_points)} keypoints)")
 
 
-def build_model(path, cfg: "PipelineConfig", *, units="auto", obj_id: int = 0, name: str | None = None,
+def build_model(path, cfg: DescriptorParams, *, units="auto", obj_id: int = 0, name: str | None = None,
                 seed: int = 0) -> ObjectModel:
     """Load one model file and compute its samples, normals, keypoints and FPFH (no cache)."""
     path = Path(path)

@@ -3,21 +3,19 @@ partial views, exactly as for a scene (whole-surface FPFH mixes in faces that no
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
 from .align import transform
 from .camera import Camera
 from .cloud import estimate_normals
-from .features import fpfh
-from .keypoints import select_keypoints
+from .features import FeatureConfig, fpfh
+from .keypoints import KeypointConfig, select_keypoints
 from .lrf import shot_lrf
-from .render import render_meshes, render_points
-
-if TYPE_CHECKING:
-    from .config import PipelineConfig
 from .params import check_positive, param
+from .preprocess import PreprocessConfig
+from .render import render_meshes, render_points
 
 
 @dataclass(frozen=True)
@@ -31,6 +29,16 @@ class ModelConfig:
         check_positive(self, "views", "view_distance")
 
 
+class DescriptorParams(Protocol):
+    """The parameters that describing a model takes (a ``PipelineConfig`` has them all): sampling and normals
+    (``preprocess``), views (``model``), keypoints and descriptors."""
+
+    preprocess: PreprocessConfig
+    model: ModelConfig
+    keypoints: KeypointConfig
+    features: FeatureConfig
+
+
 def view_directions(n: int) -> np.ndarray:
     """(n, 3) unit vectors spread evenly over the sphere (Fibonacci lattice), deterministic."""
     i = np.arange(n) + 0.5
@@ -40,7 +48,7 @@ def view_directions(n: int) -> np.ndarray:
     return np.stack([r * np.cos(a), r * np.sin(a), z], axis=1)
 
 
-def view_features(points: np.ndarray, normals: np.ndarray, cfg: "PipelineConfig", *, diameter: float,
+def view_features(points: np.ndarray, normals: np.ndarray, cfg: DescriptorParams, *, diameter: float,
                   vertices: np.ndarray | None = None, faces: np.ndarray | None = None):
     """Keypoints, normals, FPFH and LRFs of the model as seen from ``cfg.model.views`` viewpoints.
 
