@@ -29,12 +29,13 @@ from .model_views import ModelConfig
 from .params import param
 from .preprocess import PreprocessConfig
 from .refine import RefineConfig
+from .resources import shipped
 from .verify import VerifyConfig
 
 __all__ = ["FeatureConfig", "GroupingConfig", "KeypointConfig", "MatchingConfig", "ModelConfig", "PipelineConfig",
            "PreprocessConfig", "RefineConfig", "VerifyConfig", "dump_toml", "field_docs", "load_pipeline"]
 
-PIPELINES_DIR = Path(__file__).resolve().parent.parent / "pipelines"
+PIPELINES_DIR = shipped("pipelines")
 
 
 @dataclass(frozen=True)
