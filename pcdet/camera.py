@@ -27,6 +27,9 @@ class Camera:
     depth_scale: float = 1.0
 
     def __post_init__(self):
+        for name in ("cx", "cy"):
+            if not np.isfinite(getattr(self, name)):
+                raise InputError(f"camera {name} must be a finite number, got {getattr(self, name)!r}")
         for name in ("fx", "fy"):
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:
@@ -57,47 +60,64 @@ class Camera:
                    float(depth_scale))
 
     @classmethod
-    def from_json(cls, path, width: int | None = None, height: int | None = None, key: str | None = None) -> "Camera":
+    def from_json(cls, path, *, width: int | None = None, height: int | None = None,
+                  key: str | None = None) -> "Camera":
         """Read a camera file.
 
         Accepted layouts: ``{"fx","fy","cx","cy","width","height","depth_scale"}`` (BOP's camera.json);
-        a BOP ``scene_camera.json`` (``{"<im_id>": {"cam_K", "depth_scale"}}``, ``key`` selects the image,
-        default the first); Open3D's ``PinholeCameraIntrinsic`` JSON (column-major ``intrinsic_matrix``, depth
-        in mm). As in BOP, ``depth_scale`` is millimetres per raw unit (raw * depth_scale = mm; default 1).
-        ``width``/``height`` fill in sizes that the file lacks (BOP scene_camera.json has none).
+        one BOP ``scene_camera.json`` entry ``{"cam_K", "depth_scale"}`` or a whole ``scene_camera.json``
+        (``{"<im_id>": {...}}``, ``key`` selects the image, default the first); Open3D's
+        ``PinholeCameraIntrinsic`` JSON (column-major ``intrinsic_matrix``, depth in mm). As in BOP,
+        ``depth_scale`` is millimetres per raw unit (raw * depth_scale = mm; default 1). ``width``/``height``:
+        the image size, for files that have none (BOP's cam_K entries); the depth image it belongs to has it.
         """
         data = read_json(path, what="camera file")
         return cls.from_dict(data, path=path, width=width, height=height, key=key)
 
     @classmethod
-    def from_dict(cls, data: dict, path=None, width=None, height=None, key=None) -> "Camera":
+    def from_dict(cls, data: dict, *, path=None, width: int | None = None, height: int | None = None,
+                  key: str | None = None) -> "Camera":
+        """A camera from the parsed JSON of ``from_json`` (``path`` only names the file in errors)."""
+        if not isinstance(data, dict):
+            raise InputError("camera JSON must be an object", path)
+        entries = {k: v for k, v in data.items() if isinstance(v, dict) and "cam_K" in v}
+        if "cam_K" not in data and "fx" not in data and "intrinsic_matrix" not in data and entries:
+            k = str(key) if key is not None else sorted(entries, key=lambda s: int(s) if s.isdigit() else s)[0]
+            if k not in entries:
+                raise InputError(f"no camera entry for image {k!r}", path)
+            return cls.from_dict(entries[k], path=path, width=width, height=height)
         try:
             if "intrinsic_matrix" in data:
                 # Open3D: column-major 3x3; its depth_scale is raw units per metre (default 1000, i.e. mm)
-                K = np.asarray(data["intrinsic_matrix"], dtype=float).reshape(3, 3).T
-                return cls.from_K(K, data["width"], data["height"], 1000.0 / float(data.get("depth_scale", 1000.0)))
-            if "cam_K" in data:  # one BOP scene_camera entry: depth_scale is mm per raw unit
-                return cls.from_K(data["cam_K"], data.get("width", width), data.get("height", height),
-                                  float(data.get("depth_scale", 1.0)))
-            if "fx" in data:  # depth_scale as in BOP: raw * depth_scale = millimetres
-                return cls(float(data["fx"]), float(data["fy"]), float(data["cx"]), float(data["cy"]),
-                           int(data.get("width", width)), int(data.get("height", height)),
-                           float(data.get("depth_scale", 1.0)))
-            entries = {k: v for k, v in data.items() if isinstance(v, dict) and "cam_K" in v}
-            if entries:
-                k = str(key) if key is not None else sorted(entries, key=lambda s: int(s) if s.isdigit() else s)[0]
-                if k not in entries:
-                    raise InputError(f"no camera entry for image {k!r}", path)
-                return cls.from_dict(entries[k], path=path, width=width, height=height)
-        except (KeyError, TypeError) as e:
-            raise InputError(f"camera JSON is missing or has a malformed field ({e}); expected fx, fy, cx, cy, "
-                             "width, height[, depth_scale] or BOP cam_K", path) from None
+                K = _matrix(data["intrinsic_matrix"]).T
+                scale = 1000.0 / float(data.get("depth_scale", 1000.0))
+            elif "cam_K" in data:  # one BOP scene_camera entry: depth_scale is mm per raw unit
+                K = _matrix(data["cam_K"])
+                scale = float(data.get("depth_scale", 1.0))
+            elif "fx" in data:  # depth_scale as in BOP: raw * depth_scale = millimetres
+                K = np.array([[float(data["fx"]), 0, float(data["cx"])], [0, float(data["fy"]), float(data["cy"])],
+                              [0, 0, 1]])
+                scale = float(data.get("depth_scale", 1.0))
+            else:
+                raise InputError("camera JSON has none of the known layouts: expected fx, fy, cx, cy, width, "
+                                 "height[, depth_scale], BOP cam_K[, depth_scale], or Open3D's intrinsic_matrix",
+                                 path)
+            w, h = data.get("width", width), data.get("height", height)
+        except (KeyError, TypeError, ValueError) as e:
+            if isinstance(e, InputError):
+                raise InputError(e.problem, e.path or path) from None
+            raise InputError(f"camera JSON is missing or has a malformed field ({type(e).__name__}: {e}); "
+                             "expected fx, fy, cx, cy, width, height[, depth_scale] or BOP cam_K", path) from None
+        if w is None or h is None:
+            raise InputError("camera JSON gives no image size (width, height), as BOP's cam_K entries do not; "
+                             "pcdet takes the size from the depth image when there is one, else add width and "
+                             "height", path)
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and float(v).is_integer() for v in (w, h)):
+            raise InputError(f"camera width and height must be whole numbers, got {w!r} x {h!r}", path)
+        try:
+            return cls.from_K(K, int(w), int(h), scale)
         except InputError as e:
-            if e.path is None and path is not None:
-                raise InputError(e.problem, path) from None
-            raise
-        raise InputError("camera JSON has none of the known layouts: expected fx, fy, cx, cy, width, height"
-                         "[, depth_scale], or BOP cam_K/depth_scale", path)
+            raise InputError(e.problem, path) from None
 
     def backproject(self, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Back-project a depth image.
@@ -135,3 +155,11 @@ class Camera:
         z = p[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.stack([self.fx * p[:, 0] / z + self.cx, self.fy * p[:, 1] / z + self.cy], axis=1)
+
+
+def _matrix(values) -> np.ndarray:
+    """A 3 x 3 float matrix from 9 numbers (a JSON list, row- or column-major as the caller knows)."""
+    a = np.asarray(values, dtype=float).reshape(-1)
+    if a.size != 9:
+        raise InputError(f"a camera matrix needs 9 numbers, got {a.size}")
+    return a.reshape(3, 3)

@@ -8,8 +8,8 @@ import numpy as np
 
 from .camera import Camera
 from .errors import InputError
-from .io.clouds import read_cloud
-from .io.depth import read_depth_png, read_rgb
+from .io.clouds import CloudData, read_cloud
+from .io.depth import image_size, read_depth_png, read_rgb
 
 
 @dataclass
@@ -45,6 +45,13 @@ class Frame:
         d = np.where(np.isfinite(d) & (d > 0), d, 0).astype(np.float32)
         self.depth = d
 
+    def __repr__(self) -> str:
+        valid = self.depth[self.depth > 0]
+        rng = f", depth {valid.min():.2f}..{valid.max():.2f} m" if valid.size else ", no valid depth"
+        src = self.info.get("source")
+        return (f"Frame({self.camera.width}x{self.camera.height}, {valid.size} valid pixels{rng}"
+                f"{', rgb' if self.rgb is not None else ''}{f', source={src!r}' if src else ''})")
+
     @property
     def shape(self) -> tuple[int, int]:
         return self.depth.shape
@@ -56,9 +63,12 @@ class Frame:
     @classmethod
     def from_depth_png(cls, depth_path, camera: Camera | str | Path, rgb_path=None, info: dict | None = None,
                        plausible_m: tuple[float, float] = (0.05, 20.0)) -> "Frame":
-        """Read a 16-bit depth PNG, converting raw units with ``camera.depth_scale``."""
+        """Read a 16-bit depth PNG, converting raw units with ``camera.depth_scale``. ``camera``: a ``Camera`` or
+        a camera JSON file (any layout ``Camera.from_json`` reads; a file without the image size takes it from
+        the depth image)."""
         if not isinstance(camera, Camera):
-            camera = Camera.from_json(camera)
+            w, h = image_size(depth_path)
+            camera = Camera.from_json(camera, width=w, height=h)
         raw = read_depth_png(depth_path)
         if raw.shape != (camera.height, camera.width):
             raise InputError(f"depth image is {raw.shape[1]}x{raw.shape[0]} but the camera is "
@@ -82,13 +92,16 @@ class Frame:
 
     @classmethod
     def from_cloud(cls, path, camera: Camera | None = None) -> "Frame":
-        """A frame from a point-cloud file in the sensor's frame (z forward).
+        """A frame from a point cloud in the sensor's frame (z forward, metres): a file (PLY/PCD/XYZ), an (N, 3)
+        array, an organized (H, W, 3) array (NaN where there is no point), or an open3d ``PointCloud``.
 
         An organized cloud (H x W) keeps its layout and its intrinsics are fitted to the points by least
         squares; an unorganized one is z-buffered into a virtual pinhole camera whose pixel pitch matches the
         point spacing, unless ``camera`` is given.
         """
-        cd = read_cloud(path, keep_invalid=True)
+        cd = read_cloud(path, keep_invalid=True) if isinstance(path, (str, Path)) else _cloud_in_memory(path)
+        if not isinstance(path, (str, Path)):
+            path = "<points>"
         pts = cd.points
         T_input_cam = np.eye(4)
         fin = np.isfinite(pts).all(axis=1)
@@ -108,6 +121,19 @@ class Frame:
         if cd.colors is not None and cd.shape is not None and (camera.height, camera.width) == cd.shape:
             rgb = (np.nan_to_num(cd.colors).reshape(*cd.shape, 3) * 255).clip(0, 255).astype(np.uint8)
         return cls(depth, camera, rgb, {"source": str(path)}, T_input_cam)
+
+
+def _cloud_in_memory(obj) -> CloudData:
+    """CloudData of an (N, 3) or (H, W, 3) array or an open3d PointCloud."""
+    if hasattr(obj, "points") and hasattr(obj, "has_colors"):  # open3d PointCloud
+        return CloudData(np.asarray(obj.points, float), None,
+                         np.asarray(obj.colors, float) if obj.has_colors() else None)
+    a = np.asarray(obj, dtype=float)
+    if a.ndim == 3 and a.shape[2] == 3:
+        return CloudData(a.reshape(-1, 3), shape=a.shape[:2])
+    if a.ndim == 2 and a.shape[1] == 3 and len(a):
+        return CloudData(a)
+    raise InputError(f"points must be an (N, 3) or (H, W, 3) array or an open3d PointCloud, got shape {a.shape}")
 
 
 def _fit_organized_camera(pts: np.ndarray, shape: tuple[int, int], path) -> Camera:

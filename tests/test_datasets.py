@@ -137,3 +137,17 @@ def test_unknown_layout_names_the_known_ones(tmp_path):
 def test_frame_refs_sort_by_scene_then_image():
     assert sorted([FrameRef(2, 0), FrameRef(1, 5), FrameRef(1, 2)]) == [FrameRef(1, 2), FrameRef(1, 5),
                                                                          FrameRef(2, 0)]
+
+
+def test_folder_recording_with_a_bop_camera_entry(tmp_path, sequence):
+    """A plain folder whose camera.json is a BOP cam_K entry (no size) reads its frames at the PNGs' size."""
+    bop = open_recording(sequence)
+    root = tmp_path / "plain"
+    (root / "depth").mkdir(parents=True)
+    f = bop.frame(bop.images[0])
+    write_depth_png(root / "depth" / "0000.png", np.rint(f.depth * 1000).astype(np.uint16))
+    (root / "camera.json").write_text(json.dumps({"cam_K": f.camera.K.reshape(-1).tolist(), "depth_scale": 1.0}))
+    rec = open_recording(root)
+    g = rec.frame(rec.images[0])
+    assert (g.camera.width, g.camera.height) == (f.camera.width, f.camera.height)
+    assert np.abs(g.depth - f.depth).max() < 1e-6

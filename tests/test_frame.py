@@ -92,3 +92,21 @@ def test_organized_pcl_scene_recovers_kinect_intrinsics():
     assert f.camera.fx == pytest.approx(525.0, abs=0.01) and f.camera.cx == pytest.approx(319.5, abs=0.01)
     np.testing.assert_array_equal(np.diag(f.T_input_cam), [1, -1, -1, 1])
     assert (f.depth > 0).sum() == 241407  # every finite point kept, one per pixel
+
+
+def test_bop_camera_entries_take_their_size_from_the_depth_image(tmp_path):
+    """A BOP cam_K entry, and a whole scene_camera.json, carry no width/height: the depth image gives them. Alone
+    (no image), such a file is refused with a sentence a person understands."""
+    write_depth_png(tmp_path / "d.png", np.full((48, 64), 750, np.uint16))
+    entry = {"cam_K": [60, 0, 32, 0, 60, 24, 0, 0, 1], "depth_scale": 1.0}
+    (tmp_path / "entry.json").write_text(json.dumps(entry))
+    (tmp_path / "scene_camera.json").write_text(json.dumps({"0": entry, "1": entry}))
+    for cam in ("entry.json", "scene_camera.json"):
+        f = Frame.from_depth_png(tmp_path / "d.png", tmp_path / cam)
+        assert (f.camera.width, f.camera.height, f.camera.fx) == (64, 48, 60.0)
+        assert f.depth[10, 10] == pytest.approx(0.75)
+    with pytest.raises(InputError, match=r"entry\.json: camera JSON gives no image size \(width, height\)"):
+        Camera.from_json(tmp_path / "entry.json")
+    (tmp_path / "bad.json").write_text(json.dumps({"cam_K": [1, 2, 3]}))
+    with pytest.raises(InputError, match=r"bad\.json: a camera matrix needs 9 numbers, got 3"):
+        Frame.from_depth_png(tmp_path / "d.png", tmp_path / "bad.json")

@@ -25,9 +25,10 @@ def test_truncated_png(tmp_path, rng):
 def test_8bit_and_rgb_are_refused(tmp_path):
     Image.fromarray(np.zeros((10, 10), np.uint8)).save(tmp_path / "gray8.png")
     Image.fromarray(np.zeros((10, 10, 3), np.uint8)).save(tmp_path / "rgb.png")
-    with pytest.raises(InputError, match=r"gray8\.png: depth image is L \(8-bit"):
+    with pytest.raises(InputError, match=r"gray8\.png: depth image is an 8-bit greyscale image; expected a "
+                                         r"single-channel 16-bit PNG"):
         read_depth_png(tmp_path / "gray8.png")
-    with pytest.raises(InputError, match=r"rgb\.png: depth image has 3 channels"):
+    with pytest.raises(InputError, match=r"rgb\.png: depth image is a colour \(RGB\) image"):
         read_depth_png(tmp_path / "rgb.png")
 
 

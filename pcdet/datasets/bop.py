@@ -10,6 +10,7 @@ from ..camera import Camera
 from ..errors import InputError
 from ..frame import Frame
 from ..io.bop import camera_pose_from_bop, pose_from_bop
+from ..io.depth import image_size
 from ..io.jsonfile import read_json
 from .base import FrameRef
 
@@ -101,7 +102,7 @@ class BopDataset:
             raise InputError(f"no entry for image {img.im_id}", src)
         w, h = self.base_camera.get("width"), self.base_camera.get("height")
         if w is None or h is None:  # no camera.json: the PNG header has the size (no decoding)
-            w, h = _image_size(self.depth_path(img))
+            w, h = image_size(self.depth_path(img))
         return Camera.from_dict(dict(entry), path=src, width=w, height=h)
 
     def frame(self, img: BopImage) -> Frame:
@@ -125,18 +126,6 @@ class BopDataset:
         for g in self.gt(img):
             t[g["obj_id"]] = t.get(g["obj_id"], 0) + 1
         return t
-
-
-def _image_size(path: Path) -> tuple[int, int]:
-    from PIL import Image, UnidentifiedImageError
-
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: image not found")
-    try:
-        with Image.open(path) as im:
-            return im.size
-    except (UnidentifiedImageError, OSError) as e:
-        raise InputError(f"not a readable image ({e})", path) from None
 
 
 def _is_split(p: Path) -> bool:

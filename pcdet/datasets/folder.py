@@ -7,6 +7,7 @@ from pathlib import Path
 from ..camera import Camera
 from ..errors import InputError
 from ..frame import Frame
+from ..io.depth import image_size
 from .base import FrameRef, SequenceBase
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg")
@@ -34,10 +35,12 @@ class FolderRecording(SequenceBase):
         self.images = [FrameRef(1, i) for i in range(len(self._depth))]
 
     def _camera(self) -> Camera:
+        """camera.json; when it has no image size (a BOP cam_K entry), the first depth image's."""
         cam = self.root / "camera.json"
         if not cam.is_file():
             raise FileNotFoundError(f"{cam}: camera file not found (a depth folder needs camera.json)")
-        return Camera.from_json(cam)
+        w, h = image_size(self._depth[0])
+        return Camera.from_json(cam, width=w, height=h)
 
     @classmethod
     def detect(cls, path: Path) -> bool:

@@ -25,6 +25,18 @@ def _open(path) -> Image.Image:
     return im
 
 
+def image_size(path) -> tuple[int, int]:
+    """(width, height) of an image file, from its header (no decoding)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: image not found")
+    try:
+        with Image.open(path) as im:
+            return im.size
+    except (UnidentifiedImageError, OSError) as e:
+        raise InputError(f"not a readable image ({e})", path) from None
+
+
 def read_depth_png(path) -> np.ndarray:
     """Read a single-channel 16-bit depth image.
 
@@ -42,10 +54,19 @@ def read_depth_png(path) -> np.ndarray:
         if a.min() < 0 or a.max() > 65535:
             raise InputError("depth image holds values outside the 16-bit range", path)
         return a.astype(np.uint16)
-    bands = len(im.getbands())
-    if bands > 1:
-        raise InputError(f"depth image has {bands} channels ({im.mode}); expected a single-channel 16-bit PNG", path)
-    raise InputError(f"depth image is {im.mode} (8-bit or float); expected a single-channel 16-bit PNG", path)
+    raise InputError(f"depth image is {describe_mode(im.mode)}; expected a single-channel 16-bit PNG (raw depth "
+                     "units, such as millimetres)", path)
+
+
+MODE_NAMES = {"1": "a 1-bit black-and-white image", "L": "an 8-bit greyscale image", "LA": "an 8-bit greyscale "
+              "image with transparency", "P": "a palette (indexed-colour) image", "RGB": "a colour (RGB) image",
+              "RGBA": "a colour image with transparency (RGBA)", "CMYK": "a CMYK colour image",
+              "YCbCr": "a colour (YCbCr) image", "F": "a 32-bit floating-point image", "I": "a 32-bit integer image"}
+
+
+def describe_mode(mode: str) -> str:
+    """What a person calls an image of Pillow's ``mode``: "an 8-bit greyscale image" for "L"."""
+    return MODE_NAMES.get(mode, f"an image of kind {mode!r}")
 
 
 def read_rgb(path) -> np.ndarray:
