@@ -25,6 +25,8 @@ from rich.text import Text
 from . import __version__
 from .console import console, fail, guard, out_console
 from .image.cli import image_app
+from .io.outputs import check_file, check_folder
+from .resources import shipped
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Find known rigid objects in depth data and estimate their 6-DoF poses.")
@@ -32,7 +34,7 @@ config_app = typer.Typer(no_args_is_help=True, help="Pipeline configuration.")
 app.add_typer(config_app, name="config")
 app.add_typer(image_app, name="image")
 
-MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+MODELS_DIR = shipped("models")
 
 
 def _pipeline(pipeline: Optional[str], seed: Optional[int], grouping: Optional[str] = None):
@@ -87,6 +89,9 @@ def detect(models: Path = typer.Option(MODELS_DIR, help="Folder of object models
         fail("give either --depth with --camera, or --cloud")
     if depth is not None and camera is None:
         fail("--depth needs --camera (a camera JSON)")
+    check_file(out, "detections JSON")
+    if overlay:
+        check_file(overlay, "overlay PNG")
     cfg = _pipeline(pipeline, seed, grouping)
     frame = Frame.from_depth_png(depth, camera, rgb_path=rgb) if depth else Frame.from_cloud(cloud)
     lib = _library(models, cfg, units)
@@ -124,7 +129,10 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
         grouping: Optional[str] = typer.Option(None, help="Grouping method: ransac, gc or hough."),
         units: str = typer.Option("auto", help="Model units: auto, m, cm, mm (BOP models/: mm)."),
         seed: Optional[int] = typer.Option(None, help="Random seed (overrides the pipeline's)."),
-        resume: bool = typer.Option(False, help="Keep the frames already written to OUT; detect the rest."),
+        resume: bool = typer.Option(False, help="Continue the run in OUT: keep its frames, detect the rest (OUT "
+                                    "must have been written from the same recording with the same pipeline)."),
+        overwrite: bool = typer.Option(False, help="Start over in an OUT that holds an earlier run (its frames and "
+                                       "result files are removed first)."),
         track: bool = typer.Option(False, help="Track objects through the recording (full detection on the "
                                    "first frame, every --redetect-every frames and after a loss; ICP from the "
                                    "predicted pose between) and write tracks.json."),
@@ -141,12 +149,20 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
         ):
     """Detect objects in every frame of a recording or dataset."""
     from .datasets import open_recording
-    from .runner import RunOptions, describe, run_recording
+    from .runner import RunFolder, RunOptions
 
     if targets not in (None, "gt"):
         fail(f"--targets takes 'gt', got {targets!r}")
     if workers < 1:
         fail(f"--workers must be >= 1, got {workers}")
+    if threads is not None and threads < 1:
+        fail(f"--threads must be >= 1, got {threads}")
+    if executor not in ("local", "ray"):
+        fail(f"--executor takes local or ray, got {executor!r}")
+    if resume and overwrite:
+        fail("--resume keeps what OUT holds and --overwrite removes it: give one of them")
+    if track and (resume or targets):
+        fail("--track follows each scene from its first frame: it takes no --resume or --targets")
     cfg = _pipeline(pipeline, seed, grouping)
     rec = open_recording(recording, format)
     if len(rec) == 0:
@@ -157,13 +173,23 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
     models = models or rec.models_dir
     if models is None:
         fail(f"{recording}: no models/ folder; pass --models")
-    lib = _library(models, cfg, units)
-    if executor not in ("local", "ray"):
-        fail(f"--executor takes local or ray, got {executor!r}")
-    if track:
-        if resume or targets:
-            fail("--track follows each scene from its first frame: it takes no --resume or --targets")
-        return _run_tracking(rec, lib, cfg, out, redetect_every, workers, executor, ray_address)
+    folder = RunFolder(out, rec, cfg, resume=resume, overwrite=overwrite, targets=targets == "gt",
+                       mode="track" if track else "detect", version=__version__)
+    try:
+        lib = _library(models, cfg, units)
+        if track:
+            return _run_tracking(rec, lib, cfg, folder.path, redetect_every, workers, executor, ray_address)
+        return _run_detection(rec, lib, cfg, folder, RunOptions(
+            targets=targets == "gt", resume=resume, workers=workers, threads=threads, executor=executor,
+            ray_address=ray_address, record_time=times, version=__version__))
+    finally:
+        folder.close()
+
+
+def _run_detection(rec, lib, cfg, folder, opts):
+    from .runner import describe, run_recording
+
+    out = folder.path
     with _progress(rate=True) as prog:
         task = prog.add_task("detecting", total=len(rec), dets=0)
         count = {"d": 0}
@@ -175,9 +201,7 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
                                    soft_wrap=True)
             prog.update(task, advance=1, dets=count["d"])
 
-        opts = RunOptions(targets=targets == "gt", resume=resume, workers=workers, threads=threads,
-                          executor=executor, ray_address=ray_address, record_time=times, version=__version__)
-        s = run_recording(rec, lib, cfg, out, opts, on_image=on_image)
+        s = run_recording(rec, lib, cfg, folder, opts, on_image=on_image)
         prog.update(task, completed=len(rec))
     med = float(np.median(s.seconds)) if s.seconds else 0.0
     kept = f", {s.resumed} kept from before" if s.resumed else ""
@@ -241,6 +265,8 @@ def register(source: Path = typer.Argument(..., help="Model or cloud to move (me
     from .register import RegisterConfig
     from .register import register as do_register
 
+    if out:
+        check_file(out, "registration JSON")
     with console.status("registering"):
         r = do_register(source, target, RegisterConfig(voxel=voxel, grouping=grouping or "ransac", seed=seed),
                         units=units)
@@ -270,17 +296,19 @@ def synth(models: Path = typer.Option(MODELS_DIR, help="Folder of mesh models.")
           seed: int = typer.Option(0, help="Random seed."),
           noise: bool = typer.Option(True, help="Apply the Kinect noise model."),
           units: str = typer.Option("auto", help="Model units: auto, m, cm, mm."),
+          overwrite: bool = typer.Option(False, help="Replace the scenes an earlier synth wrote into OUT."),
           ):
     """Render synthetic table-top scenes with exact ground truth, as a BOP dataset."""
     from .config import PipelineConfig
-    from .synth import SynthConfig, synthesize
+    from .synth import SynthConfig, check_synth_folder, synthesize
 
-    lib = _library(models, PipelineConfig(), units)
     cfg = SynthConfig(scenes=scenes, objects=objects, instances=instances, distractors=distractors, seed=seed,
                       noise=noise, sequence=sequence)
+    check_synth_folder(check_folder(out, "dataset folder"), overwrite=overwrite)
+    lib = _library(models, PipelineConfig(), units)
     with _progress(detections=False) as prog:
         task = prog.add_task("rendering", total=scenes)
-        synthesize(lib, out, cfg, progress=lambda i, n: prog.update(task, completed=i))
+        synthesize(lib, out, cfg, overwrite=overwrite, progress=lambda i, n: prog.update(task, completed=i))
     console.print(f"{scenes} scene(s) -> {out}")
 
 
@@ -295,16 +323,21 @@ def eval_cmd(dataset: Path = typer.Argument(..., help="BOP dataset with ground t
     """Score a BOP results file: ADD, ADD-S, MSSD, MSPD recall and BOP-style AR, per object and overall."""
     from .config import PipelineConfig
     from .datasets.bop import BopDataset
-    from .evaluate import evaluate
+    from .evaluate import evaluate, load_symmetries
     from .io.atomic import atomic_write_text
     from .io.bop import read_results_csv
 
+    if json_out:
+        check_file(json_out, "evaluation JSON")
     ds = BopDataset(dataset)
     models = models or ds.models_dir
     if models is None:
         fail(f"{dataset}: no models/ folder; pass --models")
+    rows = read_results_csv(results)
     lib = _library(models, PipelineConfig(), units)
-    ev = evaluate(ds, read_results_csv(results), lib)
+    ev = evaluate(ds, rows, lib, symmetries=load_symmetries(models, lib), source=results)
+    for w in ev.warnings:
+        console.print(f"[yellow]warning:[/] {escape(str(results))}: {escape(w)}", highlight=False, soft_wrap=True)
     _print_eval(ev, lib)
     if json_out:
         atomic_write_text(json_out, json.dumps(ev.to_dict(), indent=1, default=float))
@@ -316,7 +349,8 @@ def _print_eval(ev, lib):
             ("recall_adds", "{:.3f}", "ADD-S"), ("precision_adds", "{:.3f}", "prec"),
             ("ar_vsd", "{:.3f}", "AR_VSD"), ("ar_mssd", "{:.3f}", "AR_MSSD"), ("ar_mspd", "{:.3f}", "AR_MSPD"),
             ("ar", "{:.3f}", "AR")]
-    t = Table(title="recall at ADD/ADD-S < 0.1 d, precision (ADD-S), BOP average recall (VSD, MSSD, MSPD)")
+    t = Table(title="recall at ADD / ADD-S < 0.1 d (each matched by its own error), precision (ADD-S), BOP average "
+                    "recall (VSD, MSSD, MSPD; symmetries from models_info.json)")
     t.add_column("object")
     for _, _, h in cols:
         t.add_column(h, justify="right")
@@ -343,12 +377,13 @@ def demo(out: Path = typer.Option(Path("demo_out"), help="Output folder."),
     from .synth import SynthConfig, synthesize
     from .viz import overlay as draw
 
+    check_folder(out, "demo folder")  # the demo rewrites its own outputs in OUT on every run
     cfg = load_pipeline("default").replace(seed=seed)
     lib = _library(MODELS_DIR, cfg, "auto")
     data = out / "dataset"
     t0 = time.perf_counter()
     with console.status("rendering synthetic scenes"):
-        synthesize(lib, data, SynthConfig(scenes=scenes, objects=4, seed=seed))
+        synthesize(lib, data, SynthConfig(scenes=scenes, objects=4, seed=seed), overwrite=True)
     ds = BopDataset(data)
     with _progress() as prog:
         task = prog.add_task("detecting", total=len(ds), dets=0)
@@ -360,7 +395,8 @@ def demo(out: Path = typer.Option(Path("demo_out"), help="Output folder."),
             results.setdefault("first", (img, res))  # drawn below, without detecting again
             prog.update(task, advance=1, dets=count["d"])
 
-        s = run_recording(ds, lib, cfg, out / "run", RunOptions(version=__version__), on_image=on_image)
+        s = run_recording(ds, lib, cfg, out / "run", RunOptions(version=__version__, overwrite=True),
+                          on_image=on_image)
     ev = evaluate(ds, read_results_csv(out / "run" / "results.csv"), lib)
     _print_eval(ev, lib)
     img, res = results["first"]

@@ -5,9 +5,13 @@ done, and ``results.csv`` (BOP format) is always rebuilt from those files, in re
 was killed and then resumed (``resume=True`` skips frames whose JSON exists) writes the same ``results.csv``
 as one that never stopped. A bad frame is reported and skipped, and ``failures.json`` lists it.
 
+The output folder is a ``RunFolder``: locked while a run writes into it, and described by ``run.json``
+(recording, format, targets, mode, pipeline), so that a resumed run cannot mix frames made from another
+recording or with another pipeline, and a new run does not silently sit beside an old one's frames.
+
 Frames are independent, so they can be spread over worker processes (``workers``) or a Ray cluster
-(``executor="ray"``, see ``executors``); each worker builds its own ``Detector`` and the output does not
-depend on where frames ran.
+(``executor="ray"``, see ``executors``); each worker builds its own ``Detector`` once, every frame is written
+as soon as it comes back, and the output does not depend on where frames ran.
 """
 from __future__ import annotations
 
@@ -19,10 +23,12 @@ from typing import Callable, Iterator
 from .config import PipelineConfig, dump_toml
 from .datasets.base import FrameRef
 from .detector import DetectionResult, Detector
-from .executors import map_chunks, split
+from .errors import InputError
+from .executors import map_unordered
 from .io.atomic import atomic_write_text
 from .io.bop import results_row, write_results_csv
 from .io.jsonfile import read_json
+from .io.outputs import FolderLock, check_folder
 from .io.results import write_detections_json
 from .library import ModelLibrary
 
@@ -60,6 +66,76 @@ class RunOptions:
     ray_address: str | None = None
     record_time: bool = False
     version: str = ""
+    overwrite: bool = False
+
+
+RUN_FILES = ("results.csv", "config.toml", "failures.json", "run.json", "tracks.json")
+
+
+class RunFolder:
+    """The output folder of one run, checked and locked before any work starts (``close()`` releases it).
+
+    A folder that already holds a run (frames or ``run.json``) is refused unless ``resume`` (continue it; its
+    ``run.json`` must name the same recording, format, targets, mode and pipeline) or ``overwrite`` (its
+    frames and pcdet's files in it are removed first). Raises ``InputError`` naming the folder."""
+
+    def __init__(self, out, rec, cfg: PipelineConfig, *, resume: bool = False, overwrite: bool = False,
+                 targets: bool = False, mode: str = "detect", version: str = ""):
+        self.path = check_folder(out, "output folder")
+        self.frames = self.path / "frames"
+        self._lock = FolderLock(self.path).acquire()
+        try:
+            self.manifest = {"recording": str(Path(rec.root).resolve()), "format": rec.format, "frames": len(rec),
+                             "targets": bool(targets), "mode": mode, "pipeline": cfg.to_dict()}
+            self._reconcile(resume, overwrite)
+            atomic_write_text(self.path / "run.json", json.dumps({"pcdet_version": version, **self.manifest},
+                                                                 indent=1))
+            self.frames.mkdir(exist_ok=True)
+        except BaseException:
+            self.close()
+            raise
+
+    def _reconcile(self, resume: bool, overwrite: bool) -> None:
+        written = sorted(self.frames.glob("*.json")) if self.frames.is_dir() else []
+        old_path = self.path / "run.json"
+        if overwrite:
+            for p in written + [self.path / f for f in RUN_FILES]:
+                p.unlink(missing_ok=True)
+            return
+        if not written and not old_path.exists():
+            return
+        if not resume:
+            raise InputError(f"already holds a run ({len(written)} frame(s) written): continue it with --resume, "
+                             "or start over with --overwrite", self.path)
+        try:
+            old = read_json(old_path)
+        except (OSError, ValueError):
+            raise InputError("holds frames but no readable run.json (written by an older pcdet?), so how they "
+                             "were made is unknown: start over with --overwrite", self.path) from None
+        diffs = _differences({k: old.get(k) for k in self.manifest if k != "frames"},
+                             {k: v for k, v in self.manifest.items() if k != "frames"})
+        if diffs:
+            raise InputError("--resume: its frames were made differently (" + "; ".join(diffs[:4])
+                             + (f"; {len(diffs) - 4} more" if len(diffs) > 4 else "")
+                             + "): use another folder, or start over with --overwrite", self.path)
+
+    def frame_path(self, ref: FrameRef) -> Path:
+        return frame_json_path(self.path, ref)
+
+    def close(self) -> None:
+        self._lock.release()
+
+
+def _differences(old, new, prefix: str = "") -> list[str]:
+    """'field: old -> new' for every leaf that differs between two nested dicts."""
+    out = []
+    for k in sorted(set(old) | set(new)):
+        a, b = old.get(k), new.get(k)
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += _differences(a, b, f"{prefix}{k}.")
+        elif a != b:
+            out.append(f"{prefix}{k}: {a!r} then, {b!r} now")
+    return out
 
 
 def frame_json_path(out: Path, ref: FrameRef) -> Path:
@@ -80,39 +156,51 @@ def _detect_one(rec, ref: FrameRef, targets: bool, det: Detector
         return ref, None, str(e)
 
 
-def _detect_chunk(shared, refs: list[FrameRef]) -> list:
-    """One worker's share: a detector of its own (one thread: the workers already fill the cores)."""
+def _worker_setup(shared):
+    """A worker's state: the recording, a detector of its own (one thread: the workers fill the cores)."""
     rec, library, cfg, targets = shared
-    det = Detector(library, cfg, workers=1)
-    return [_detect_one(rec, r, targets, det) for r in refs]
+    return rec, Detector(library, cfg, workers=1), targets
+
+
+def _worker_task(state, ref: FrameRef):
+    rec, det, targets = state
+    return _detect_one(rec, ref, targets, det)
 
 
 def _detect_all(rec, refs: list[FrameRef], library: ModelLibrary, cfg: PipelineConfig, opt: RunOptions
                 ) -> Iterator[tuple[FrameRef, DetectionResult | None, str | None]]:
-    """Results in the order of ``refs``: here, frame by frame, or in chunks on a pool or on Ray."""
+    """Results here in the order of ``refs``, or from worker processes or Ray as each frame is done."""
     if opt.executor == "local" and opt.workers <= 1:
         det = Detector(library, cfg, workers=opt.threads)
         for ref in refs:
             yield _detect_one(rec, ref, opt.targets, det)
         return
-    chunks = split(refs, 4 * max(opt.workers, 1))  # a few chunks per worker evens out slow frames
-    for results in map_chunks(_detect_chunk, (rec, library, cfg, opt.targets), chunks, workers=opt.workers,
-                              executor=opt.executor, ray_address=opt.ray_address):
-        yield from results
+    yield from map_unordered(_worker_setup, _worker_task, (rec, library, cfg, opt.targets), refs,
+                             workers=opt.workers, executor=opt.executor, ray_address=opt.ray_address)
 
 
-def run_recording(rec, library: ModelLibrary, cfg: PipelineConfig, out, options: RunOptions | None = None, *,
+def run_recording(rec, library: ModelLibrary, cfg: PipelineConfig, out: "Path | str | RunFolder",
+                  options: RunOptions | None = None, *,
                   on_image: Callable[[FrameRef, DetectionResult | None, str | None], None] | None = None
                   ) -> RunSummary:
-    """Detect in every frame of ``rec`` (any reader of ``pcdet.datasets``), writing into the folder ``out``:
-    ``frames/<scene>_<image>.json`` as each frame is done, then ``results.csv`` (BOP), ``config.toml`` (the
-    resolved pipeline) and ``failures.json``. ``options``: see ``RunOptions``.
+    """Detect in every frame of ``rec`` (any reader of ``pcdet.datasets``), writing into the folder ``out`` (a
+    path, or a ``RunFolder`` opened beforehand): ``frames/<scene>_<image>.json`` as each frame is done, then
+    ``results.csv`` (BOP), ``config.toml`` (the resolved pipeline) and ``failures.json``; ``run.json`` says how
+    the frames were made. ``options``: see ``RunOptions``.
 
     on_image(ref, result, error) : called after each frame (result None on error; not called for frames
         skipped by ``resume``)."""
     opt = options or RunOptions()
-    out = Path(out)
-    (out / "frames").mkdir(parents=True, exist_ok=True)
+    folder = out if isinstance(out, RunFolder) else RunFolder(out, rec, cfg, resume=opt.resume, overwrite=opt.overwrite,
+                                                             targets=opt.targets, version=opt.version)
+    try:
+        return _run(rec, library, cfg, folder.path, opt, on_image)
+    finally:
+        if folder is not out:
+            folder.close()
+
+
+def _run(rec, library, cfg, out: Path, opt: RunOptions, on_image) -> RunSummary:
     summary = RunSummary()
     todo = list(rec)
     if opt.resume:

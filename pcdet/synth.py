@@ -8,6 +8,7 @@ sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2 m, 1 mm quantisation, dropped pixels at d
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -261,11 +262,26 @@ def camera_path(az: float, el: float, dist: float, target: np.ndarray, cfg: Synt
     return out
 
 
-def synthesize(lib: ModelLibrary, out, cfg: SynthConfig, camera: Camera = KINECT,
+def check_synth_folder(out: Path, *, overwrite: bool = False) -> None:
+    """Refuse an ``out`` that already holds synthetic scenes (``out/test/<scene>``), unless ``overwrite``:
+    scenes of another seed or size must not be left beside the new ones."""
+    old = [d for d in (out / "test").iterdir() if d.is_dir()] if (out / "test").is_dir() else []
+    if old and not overwrite:
+        raise InputError(f"already holds {len(old)} scene(s) in test/: pass --overwrite (overwrite=True) to "
+                         "replace them, or choose another folder", out)
+
+
+def synthesize(lib: ModelLibrary, out, cfg: SynthConfig, camera: Camera = KINECT, *, overwrite: bool = False,
                progress: Callable[[int, int], None] | None = None) -> Path:
     """Write ``cfg.scenes`` scenes as ``out/test/<scene>/`` (one image each) plus ``out/models`` and
-    ``out/camera.json``. Returns ``out``."""
+    ``out/camera.json``. Returns ``out``. A folder that holds scenes already is refused, or with ``overwrite``
+    its ``test/`` and ``models/`` are removed first."""
     out = Path(out)
+    check_synth_folder(out, overwrite=overwrite)
+    if overwrite:
+        for sub in ("test", "models"):
+            if (out / sub).is_dir():
+                shutil.rmtree(out / sub)
     no_mesh = [m.name for m in lib if not m.is_mesh]
     if no_mesh:
         raise InputError(f"synth renders meshes; these models are point clouds: {no_mesh}")

@@ -11,7 +11,7 @@ PKG = Path(__file__).resolve().parent.parent / "pcdet"
 
 # lowest first; a module is placed by the longest dotted prefix listed (``image.cli`` before ``image``)
 LAYERS = [
-    ("utilities", ["errors", "params", "_o3d", "align", "camera", "cloud", "pairs", "lrf", "render", "metrics",
+    ("utilities", ["errors", "params", "_o3d", "resources", "align", "camera", "cloud", "pairs", "lrf", "render", "metrics",
                    "trajectory", "io"]),
     ("frames and readers", ["frame", "datasets"]),
     ("stages", ["preprocess", "keypoints", "features", "matching", "grouping", "refine", "verify",

@@ -61,10 +61,10 @@ def test_bad_inputs_one_clear_line(scene):
     assert "cut.png: image is truncated" in _error_line(_cli(*base, "--depth", scene / "cut.png", "--camera",
                                                                  scene / "cam.json"))
     Image.fromarray(np.zeros((480, 640), np.uint8)).save(scene / "gray.png")
-    assert "gray.png: depth image is L (8-bit" in _error_line(_cli(*base, "--depth", scene / "gray.png",
+    assert "gray.png: depth image is an 8-bit greyscale image; expected a single-channel 16-bit PNG" in _error_line(_cli(*base, "--depth", scene / "gray.png",
                                                                    "--camera", scene / "cam.json"))
     Image.fromarray(np.zeros((480, 640, 3), np.uint8)).save(scene / "rgb.png")
-    assert "rgb.png: depth image has 3 channels" in _error_line(_cli(*base, "--depth", scene / "rgb.png",
+    assert "rgb.png: depth image is a colour (RGB) image" in _error_line(_cli(*base, "--depth", scene / "rgb.png",
                                                                      "--camera", scene / "cam.json"))
     Image.fromarray(np.full((240, 320), 700, np.uint16)).save(scene / "small.png")
     assert "small.png: depth image is 320x240 but the camera is 640x480" in _error_line(
@@ -76,6 +76,14 @@ def test_bad_inputs_one_clear_line(scene):
         _cli(*base, "--depth", scene / "depth.png", "--camera", scene / "broken.json"))
     np.savetxt(scene / "nan.xyz", np.full((5, 3), np.nan))
     assert "nan.xyz: point cloud holds no finite point" in _error_line(_cli(*base, "--cloud", scene / "nan.xyz"))
+
+
+def test_detect_takes_a_whole_bop_scene_camera_json(synth_small, scene):
+    """--camera may be BOP's scene_camera.json (cam_K entries without an image size): the depth PNG gives it."""
+    res = _cli("detect", "--models", MODELS, "--depth", scene / "depth.png", "--camera",
+               synth_small / "test" / "000001" / "scene_camera.json", "--out", scene / "det.json")
+    assert res.exit_code == 0, res.output
+    assert len(json.loads((scene / "det.json").read_text())["detections"]) >= 2
 
 
 def test_empty_model_file(scene):

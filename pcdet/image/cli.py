@@ -11,6 +11,7 @@ import typer
 from ..console import guard
 from ..errors import InputError
 from ..io.jsonfile import read_json
+from ..io.outputs import check_file
 
 image_app = typer.Typer(no_args_is_help=True, help="Recognition from 2D views: LCM, Hough, homographies.")
 
@@ -88,6 +89,7 @@ def hough(image: Path = typer.Argument(..., help="Image file (PNG, JPEG, ...).")
 
         if shape not in ("lines", "circles"):
             raise InputError(f"--shape takes lines or circles, got {shape!r}")
+        check_file(out, "picture")
         if not image.is_file():
             raise FileNotFoundError(f"{image}: image not found")
         try:
@@ -129,6 +131,8 @@ def homography(matches_json: Path = typer.Argument(..., help='JSON: {"src": [[x,
         from ..io.atomic import atomic_write_text
         from .transforms import ransac_affine, ransac_homography
 
+        if out:
+            check_file(out, "JSON")
         doc = read_json(matches_json)
         r = (ransac_affine if affine else ransac_homography)(doc["src"], doc["dst"], threshold, seed=seed)
         typer.echo("affine" if affine else "homography")
