@@ -6,7 +6,7 @@ and the BOP challenge (2019-2023).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -89,113 +89,124 @@ def rotation_error_deg(R_est: np.ndarray, R_gt: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(c, -1, 1))))
 
 
+def symmetry_transforms(info: dict, max_step: float = 0.01) -> list[np.ndarray]:
+    """An object's symmetries from its BOP ``models_info.json`` entry (lengths in mm there), as (4, 4)
+    model-frame transforms in metres, the identity first. ``symmetries_discrete`` are listed 4 x 4 matrices
+    (row-major); each ``symmetries_continuous`` {"axis", "offset"} is sampled as rotations about the axis
+    through the offset, so finely that no point within the model's diameter moves more than ``max_step`` x
+    the diameter between samples (BOP's rule: ceil(pi / max_step) samples). Discrete and continuous ones are
+    combined."""
+    disc = [np.eye(4)]
+    for m in info.get("symmetries_discrete", []) or []:
+        T = np.asarray(m, float).reshape(4, 4).copy()
+        T[:3, 3] /= 1000.0
+        disc.append(T)
+    cont = [np.eye(4)]
+    for c in info.get("symmetries_continuous", []) or []:
+        axis = np.asarray(c["axis"], float)
+        axis /= np.linalg.norm(axis)
+        offset = np.asarray(c.get("offset", [0, 0, 0]), float) / 1000.0
+        n = int(np.ceil(np.pi / max_step))
+        for i in range(1, n):
+            from scipy.spatial.transform import Rotation
+
+            R = Rotation.from_rotvec(axis * 2 * np.pi * i / n).as_matrix()
+            T = np.eye(4)
+            T[:3, :3] = R
+            T[:3, 3] = offset - R @ offset
+            cont.append(T)
+    return [d @ c for c in cont for d in disc]
+
+
 @dataclass
-class InstanceErrors:
-    """Errors of the estimate matched to one ground-truth instance (None where no estimate matched)."""
+class ObjectErrors:
+    """The pose errors between the estimates and the ground-truth instances of one object in one image.
+
+    scores : (E,) estimate scores; visib_fract : (G,) visible fraction of each instance (None when unknown);
+    errors : {"add", "adds", "mssd" (m), "mspd" (px)} -> (E, G), and "vsd" -> (E, G, len(VSD_TAUS)) when
+    depth was rendered; diameter : m; lines : (E,) where each estimate came from (file line), for messages.
+    """
 
     scene_id: int
     im_id: int
     obj_id: int
-    visib_fract: float | None
-    score: float | None
-    add: float | None
-    adds: float | None
-    mssd: float | None
-    mspd: float | None
-    vsd: list[float] | None = None  # one error per tau in VSD_TAUS, when depth rendering was available
-    gt_index: int = -1  # position of the ground-truth entry in the image's list
-    est_index: int = -1  # position of the matched estimate in the image's list (-1: none)
+    diameter: float
+    scores: np.ndarray
+    visib_fract: list
+    errors: dict[str, np.ndarray]
+    lines: list = field(default_factory=list)
 
 
-def match_image(gts: list[dict], ests: list[dict], points: dict[int, np.ndarray], K: np.ndarray, *,
-                image_width: int = 640, symmetries: dict[int, list[np.ndarray]] | None = None,
-                scene_id: int = 0, im_id: int = 0, diameters: dict[int, float] | None = None
-                ) -> tuple[list[InstanceErrors], int]:
-    """Match estimates to ground-truth instances of one image, per object, greedily by score (BOP style:
-    each estimate, best score first, takes the unmatched instance with the lowest MSSD if that MSSD is within
-    the loosest MSSD threshold).
+def object_errors(gts: list[dict], ests: list[dict], points: np.ndarray, K: np.ndarray, diameter: float, *,
+                  symmetries: list[np.ndarray] | None = None, scene_id: int = 0, im_id: int = 0,
+                  obj_id: int = 0) -> ObjectErrors:
+    """ADD, ADD-S, MSSD and MSPD of every estimate against every ground-truth instance of one object.
 
-    gts : [{"obj_id", "T_cam_model", "visib_fract"}]; ests : [{"obj_id", "score", "T_cam_model"}];
-    points : {obj_id: (N, 3) model points, m}; diameters : {obj_id: m}, computed from the points when absent.
-    Returns the per-instance errors and the number of estimates that matched no instance (false positives).
-    """
-    from .cloud import diameter
-
-    symmetries = symmetries or {}
-    diameters = dict(diameters or {})
-    out: list[InstanceErrors] = []
-    false_pos = 0
-    for oid in sorted({g["obj_id"] for g in gts} | {e["obj_id"] for e in ests}):
-        g_idx = [i for i, g in enumerate(gts) if g["obj_id"] == oid]
-        g_o = [gts[i] for i in g_idx]
-        e_idx = sorted([i for i, e in enumerate(ests) if e["obj_id"] == oid], key=lambda i: (-ests[i]["score"], i))
-        e_o = [ests[i] for i in e_idx]
-        if oid not in points:
-            false_pos += len(e_o)
-            continue
-        X = points[oid]
-        if oid not in diameters:
-            diameters[oid] = diameter(X)
-        diam = diameters[oid]
-        taken: dict[int, int] = {}
-        for ei, e in zip(e_idx, e_o):
-            best, best_err = None, None
-            for gi, g in enumerate(g_o):
-                if gi in taken:
-                    continue
-                err = mssd(e["T_cam_model"], g["T_cam_model"], X, symmetries.get(oid))
-                if best_err is None or err < best_err:
-                    best, best_err = gi, err
-            if best is not None and best_err <= MSSD_THRESHOLDS[-1] * diam:
-                taken[best] = ei
-            else:
-                false_pos += 1
-        for gi, g in enumerate(g_o):
-            ei = taken.get(gi)
-            if ei is None:
-                out.append(InstanceErrors(scene_id, im_id, oid, g.get("visib_fract"), None, None, None, None, None,
-                                          gt_index=g_idx[gi]))
-                continue
-            e = ests[ei]
+    gts : [{"T_cam_model", "visib_fract"}]; ests : [{"score", "T_cam_model"}]; points : (N, 3) model points (m);
+    symmetries : the object's model-frame symmetries (``symmetry_transforms``), for MSSD and MSPD."""
+    E, G = len(ests), len(gts)
+    errs = {k: np.full((E, G), np.inf) for k in ("add", "adds", "mssd", "mspd")}
+    for i, e in enumerate(ests):
+        for j, g in enumerate(gts):
             Te, Tg = e["T_cam_model"], g["T_cam_model"]
-            out.append(InstanceErrors(scene_id, im_id, oid, g.get("visib_fract"), e["score"], add(Te, Tg, X),
-                                      adds(Te, Tg, X), mssd(Te, Tg, X, symmetries.get(oid)),
-                                      mspd(Te, Tg, X, K, symmetries.get(oid)), gt_index=g_idx[gi], est_index=ei))
-    return out, false_pos
+            errs["add"][i, j] = add(Te, Tg, points)
+            errs["adds"][i, j] = adds(Te, Tg, points)
+            errs["mssd"][i, j] = mssd(Te, Tg, points, symmetries)
+            errs["mspd"][i, j] = mspd(Te, Tg, points, K, symmetries)
+    return ObjectErrors(scene_id, im_id, obj_id, diameter, np.array([e["score"] for e in ests], float),
+                        [g.get("visib_fract") for g in gts], errs, [e.get("line") for e in ests])
 
 
-def summarize(errors: list[InstanceErrors], diameters: dict[int, float], false_pos: int,
-              image_width: int = 640, add_threshold: float = 0.1) -> dict:
-    """Recall and BOP average recall over a set of matched instances.
+def match(errors: np.ndarray, scores: np.ndarray, threshold: float) -> list[tuple[int, int]]:
+    """BOP's matching of estimates to instances under one error and one threshold: estimates in order of
+    decreasing score (ties: lower index first) each take the unmatched instance with the lowest error, if that
+    error is below ``threshold``. errors : (E, G). Returns the (estimate, instance) pairs."""
+    taken: set[int] = set()
+    pairs = []
+    for i in sorted(range(len(scores)), key=lambda i: (-scores[i], i)):
+        row = [(errors[i, j], j) for j in range(errors.shape[1]) if j not in taken and errors[i, j] < threshold]
+        if row:
+            j = min(row)[1]
+            taken.add(j)
+            pairs.append((i, j))
+    return pairs
 
-    recall_add / recall_adds: share of instances with ADD / ADD-S < ``add_threshold`` x diameter.
-    ar_mssd: mean over MSSD thresholds 0.05..0.5 x diameter of the recall; ar_mspd: mean over 5..50 px
-    (scaled by image_width / 640); ar_vsd: mean over tau 0.05..0.5 x diameter and theta 0.05..0.5, when VSD
-    errors are present; ar: mean of those available (BOP's AR when all three are).
-    precision_adds: estimates within the ADD-S threshold over all estimates (matched + false positives).
+
+def summarize(objects: list[ObjectErrors], image_width: int = 640, add_threshold: float = 0.1) -> dict:
+    """Recalls and BOP average recalls over the per-object, per-image errors ``objects``.
+
+    Every metric matches estimates to instances on its own (``match``, per threshold), as the BOP toolkit does,
+    so each column means what its name says:
+    recall_add / recall_adds : instances matched at ADD / ADD-S < ``add_threshold`` x diameter, over all
+      instances; precision_adds : estimates matched at that ADD-S threshold, over all estimates.
+    ar_mssd : mean over thresholds 0.05..0.5 x diameter of the MSSD recall; ar_mspd : mean over 5..50 px
+      (x image_width / 640); ar_vsd : mean over tau 0.05..0.5 x diameter and theta 0.05..0.5, when VSD errors
+      are present; ar : mean of those available (BOP's AR when all three are).
     """
-    n = len(errors)
+    n = sum(len(o.visib_fract) for o in objects)
+    n_est = sum(len(o.scores) for o in objects)
     if n == 0:
-        return {"instances": 0}
+        return {"instances": 0, "estimates": n_est}
 
-    def share(vals):
-        return float(np.mean(vals)) if vals else 0.0
+    def recall(key, th_of, idx=None):
+        hits = 0
+        for o in objects:
+            if len(o.scores) and len(o.visib_fract):
+                e = o.errors[key] if idx is None else o.errors[key][..., idx]
+                hits += len(match(e, o.scores, th_of(o)))
+        return hits / n
 
-    ok_add = [e.add is not None and e.add < add_threshold * diameters[e.obj_id] for e in errors]
-    ok_adds = [e.adds is not None and e.adds < add_threshold * diameters[e.obj_id] for e in errors]
-    ar_mssd = np.mean([share([e.mssd is not None and e.mssd < t * diameters[e.obj_id] for e in errors])
-                       for t in MSSD_THRESHOLDS])
-    ar_mspd = np.mean([share([e.mspd is not None and e.mspd < t * image_width / 640 for e in errors])
-                       for t in MSPD_THRESHOLDS_PX])
-    n_est = sum(e.score is not None for e in errors) + false_pos
-    out = {"instances": n, "estimates": n_est, "recall_add": share(ok_add), "recall_adds": share(ok_adds),
-           "precision_adds": (sum(ok_adds) / n_est) if n_est else 0.0,
-           "ar_mssd": float(ar_mssd), "ar_mspd": float(ar_mspd)}
-    parts = [ar_mssd, ar_mspd]
-    if any(e.vsd is not None for e in errors):
-        ar_vsd = float(np.mean([share([e.vsd is not None and e.vsd[i] < th for e in errors])
-                                for i in range(len(VSD_TAUS)) for th in VSD_THETAS]))
-        out["ar_vsd"] = ar_vsd
-        parts.append(ar_vsd)
+    out = {"instances": n, "estimates": n_est,
+           "recall_add": recall("add", lambda o: add_threshold * o.diameter),
+           "recall_adds": recall("adds", lambda o: add_threshold * o.diameter)}
+    out["precision_adds"] = out["recall_adds"] * n / n_est if n_est else 0.0
+    out["ar_mssd"] = float(np.mean([recall("mssd", lambda o, t=t: t * o.diameter) for t in MSSD_THRESHOLDS]))
+    out["ar_mspd"] = float(np.mean([recall("mspd", lambda o, t=t: t * image_width / 640)
+                                    for t in MSPD_THRESHOLDS_PX]))
+    parts = [out["ar_mssd"], out["ar_mspd"]]
+    if objects and all("vsd" in o.errors for o in objects):
+        out["ar_vsd"] = float(np.mean([recall("vsd", lambda o, th=th: th, idx=i)
+                                       for i in range(len(VSD_TAUS)) for th in VSD_THETAS]))
+        parts.append(out["ar_vsd"])
     out["ar"] = float(np.mean(parts))
     return out

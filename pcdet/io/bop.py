@@ -70,7 +70,9 @@ def write_results_csv(path, rows: list[list[str]]) -> Path:
 
 
 def read_results_csv(path) -> list[dict]:
-    """Rows as dicts with ``scene_id, im_id, obj_id, score, T_cam_model (4, 4, m), time``."""
+    """Rows as dicts with ``scene_id, im_id, obj_id, score, T_cam_model (4, 4, m), time`` and ``line`` (the
+    file line). A row with a non-finite number, or whose R is not a rotation (R R^T = I within 1e-3, det +1),
+    is refused with the file and the line."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: results file not found")
@@ -82,11 +84,18 @@ def read_results_csv(path) -> list[dict]:
             raise InputError(f"BOP results CSV lacks column(s) {sorted(missing)}", path)
         for n, row in enumerate(r, start=2):
             try:
-                out.append({"scene_id": int(row["scene_id"]), "im_id": int(row["im_id"]),
-                            "obj_id": int(row["obj_id"]), "score": float(row["score"]),
-                            "T_cam_model": _rt(np.array(row["R"].split(), float).reshape(3, 3),
-                                               np.array(row["t"].split(), float)),
-                            "time": float(row.get("time") or -1)})
-            except (ValueError, TypeError) as e:
-                raise InputError(f"line {n}: malformed row ({e})", path) from None
+                R = np.array(row["R"].split(), float).reshape(3, 3)
+                t = np.array(row["t"].split(), float).reshape(3)
+                score = float(row["score"])
+                item = {"scene_id": int(row["scene_id"]), "im_id": int(row["im_id"]), "obj_id": int(row["obj_id"]),
+                        "score": score, "T_cam_model": _rt(R, t), "time": float(row.get("time") or -1), "line": n}
+            except (ValueError, TypeError, AttributeError) as e:
+                raise InputError(f"line {n}: malformed row ({e}); expected scene_id,im_id,obj_id,score, 9 numbers "
+                                 "for R, 3 for t (mm), time", path) from None
+            if not (np.isfinite(R).all() and np.isfinite(t).all() and np.isfinite(score)):
+                raise InputError(f"line {n}: R, t or score is not a finite number", path)
+            if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
+                raise InputError(f"line {n}: R is not a rotation (R R^T differs from I by "
+                                 f"{np.abs(R @ R.T - np.eye(3)).max():.3g}, det {np.linalg.det(R):.3g})", path)
+            out.append(item)
     return out
