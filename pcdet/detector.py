@@ -47,6 +47,11 @@ class Detection:
     visible_fraction: float
     group_size: int = 0
 
+    def __repr__(self) -> str:
+        x, y, z = self.T_cam_model[:3, 3]
+        return (f"Detection({self.model!r}, obj_id={self.obj_id}, score={self.score:.3f}, "
+                f"at ({x:.3f}, {y:.3f}, {z:.3f}) m)")
+
     def to_dict(self) -> dict:
         return {"model": self.model, "obj_id": self.obj_id, "score": round(float(self.score), 6),
                 "T_cam_model": np.round(self.T_cam_model, 9).tolist(), "n_inliers": int(self.n_inliers),
@@ -62,6 +67,12 @@ class DetectionResult:
     detections: list[Detection]
     timing_s: dict[str, float] = field(default_factory=dict)
     stats: dict[str, int] = field(default_factory=dict)
+
+    def __repr__(self) -> str:
+        found = ", ".join(f"{d.model} {d.score:.2f}" for d in self.detections[:5])
+        more = f", ... {len(self.detections) - 5} more" if len(self.detections) > 5 else ""
+        return (f"DetectionResult({len(self.detections)} detection(s){': ' + found if found else ''}{more}; "
+                f"{sum(self.timing_s.values()):.2f} s)")
 
 
 @dataclass

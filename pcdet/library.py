@@ -8,7 +8,7 @@ from .config import PipelineConfig
 from .errors import InputError
 from .io.jsonfile import read_json
 from .io.models import MODEL_SUFFIXES
-from .model import ObjectModel
+from .model import ObjectModel, build_model
 from .model_cache import load_model
 
 
@@ -90,6 +90,19 @@ class ModelLibrary:
         if path.is_file():
             return cls.from_files([path], cfg, units=units, cache_dir=cache_dir)
         return cls.from_folder(path, cfg, units=units, cache_dir=cache_dir, progress=progress)
+
+    @classmethod
+    def from_objects(cls, objects: dict, cfg: PipelineConfig | None = None, *, units="auto") -> "ModelLibrary":
+        """Models held in memory, ``{name: geometry}``: an (N, 3) array of points, an open3d ``PointCloud`` or
+        ``TriangleMesh``, or a trimesh object (metres, or ``units``). Ids are 1, 2, ... in the order given; they
+        are built here and not cached.
+
+        >>> import trimesh
+        >>> lib = ModelLibrary.from_objects({"box": trimesh.creation.box((0.08, 0.05, 0.03))})
+        """
+        cfg = cfg or PipelineConfig()
+        return cls([build_model(g, cfg, units=units, obj_id=i, name=str(n))
+                    for i, (n, g) in enumerate(objects.items(), start=1)])
 
     @classmethod
     def from_files(cls, paths, cfg: PipelineConfig | None = None, *, units="auto", cache_dir=None) -> "ModelLibrary":

@@ -11,7 +11,7 @@ import numpy as np
 from .cloud import diameter as cloud_diameter
 from .cloud import estimate_normals, outward_normals, voxel_downsample
 from .errors import InputError
-from .io.models import load_geometry
+from .io.models import as_geometry
 from .model_views import DescriptorParams, view_features
 
 
@@ -54,11 +54,14 @@ class ObjectModel:
                 f"{len(self.points)} samples, {len(self.kp_points)} keypoints)")
 
 
-def build_model(path, cfg: DescriptorParams, *, units="auto", obj_id: int = 0, name: str | None = None,
+def build_model(source, cfg: DescriptorParams, *, units="auto", obj_id: int = 0, name: str | None = None,
                 seed: int = 0) -> ObjectModel:
-    """Load one model file and compute its samples, normals, keypoints and FPFH (no cache)."""
-    path = Path(path)
-    g = load_geometry(path, units)
+    """Compute a model's samples, normals, keypoints and FPFH (no cache). ``source``: a model file, or an
+    in-memory mesh or cloud (an (N, 3) array, an open3d or trimesh geometry; see ``io.models.as_geometry``),
+    which then needs a ``name``."""
+    in_memory = not isinstance(source, (str, Path))
+    path = Path(name or "model") if in_memory else Path(source)
+    g = as_geometry(source, units, name=str(path))
     verts, faces, vnormals = g.vertices, g.faces, g.normals
     pp = cfg.preprocess
     if faces is not None:
@@ -88,5 +91,5 @@ def build_model(path, cfg: DescriptorParams, *, units="auto", obj_id: int = 0, n
     kpp, kpn, feats, lrfs = view_features(pts, nrm, cfg, diameter=diameter, vertices=vv, faces=faces)
     if len(kpp) < 3:
         raise InputError("no view of the model yields keypoints: is it flat, tiny, or in the wrong units?", path)
-    return ObjectModel(name or path.stem, int(obj_id), str(path), pts, nrm, kpp, kpn, feats, lrfs, diameter, g.scale,
-                       vv, faces, g.notes)
+    return ObjectModel(name or path.stem, int(obj_id), "" if in_memory else str(path), pts, nrm, kpp, kpn, feats,
+                       lrfs, diameter, g.scale, vv, faces, g.notes)

@@ -6,6 +6,7 @@ Both may be meshes or point clouds (any format ``load_model`` reads); units are 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -16,7 +17,7 @@ from .config import PipelineConfig, RefineConfig
 from .errors import InputError
 from .features import fpfh
 from .grouping import GROUPERS, make_grouper
-from .io.models import Geometry, load_geometry
+from .io.models import Geometry, as_geometry
 from .keypoints import select_keypoints
 from .lrf import shot_lrf
 from .matching import match_features
@@ -59,14 +60,19 @@ def _prepared(points: np.ndarray, normals: np.ndarray | None, voxel: float):
 
 
 def register(source, target, config: RegisterConfig | None = None, *, units="auto") -> Registration:
-    """Align ``source`` to ``target`` (model or cloud file paths) globally, then refine by ICP."""
+    """Align ``source`` to ``target`` globally, then refine by ICP. Each is a mesh or cloud file, an (N, 3)
+    array of points, an open3d ``PointCloud`` / ``TriangleMesh`` or a trimesh object (``io.models.as_geometry``).
+
+    >>> r = register("bun_zipper_res3.ply", "bun045.ply")
+    >>> r.T_target_source  # (4, 4): source points into the target's frame
+    """
     import time
 
     cfg = config or RegisterConfig()
     if cfg.grouping not in GROUPERS:
         raise InputError(f"grouping {cfg.grouping!r} is not available; use one of {', '.join(map(repr, GROUPERS))}")
     t0 = time.perf_counter()
-    src, tgt = load_geometry(source, units), load_geometry(target, units)
+    src, tgt = as_geometry(source, units, name="source"), as_geometry(target, units, name="target")
     s_pts, s_nrm = _surface(src)
     t_pts, t_nrm = _surface(tgt)
     diameter = cloud_diameter(s_pts)
@@ -93,7 +99,7 @@ def register(source, target, config: RegisterConfig | None = None, *, units="aut
     tf = fpfh(tp, tn, tkp, pc.features)
     grouper = make_grouper(pc.grouping)
     lrf = (lambda pts, kp: shot_lrf(pts, pts[kp], pc.features.radius)[0]) if grouper.needs_lrfs else None
-    model = ObjectModel("source", 0, str(source), sp, sn, sp[skp], sn[skp], sf,
+    model = ObjectModel("source", 0, str(source) if isinstance(source, (str, Path)) else "", sp, sn, sp[skp], sn[skp], sf,
                         lrf(sp, skp) if lrf else np.full((len(skp), 3, 3), np.nan), diameter)
     tree = cKDTree(tp)
     scene = SceneKeypoints(tp[tkp], tn[tkp], lrfs=lrf(tp, tkp) if lrf else None, cloud_tree=tree)

@@ -99,3 +99,43 @@ def load_geometry(path, units="auto") -> Geometry:
     notes: list[str] = []
     scale = resolve_scale(verts, units, path, notes)
     return Geometry(verts * scale, faces, vnormals, scale, notes)
+
+
+def as_geometry(source, units="auto", name: str = "input") -> Geometry:
+    """A model or scan given in any form pcdet takes, as a ``Geometry`` in metres: a file path (``load_geometry``),
+    an (N, 3) array of points, an open3d ``PointCloud`` or ``TriangleMesh``, or a trimesh ``Trimesh`` or
+    ``PointCloud``. ``name`` stands for the input in messages when it is not a file."""
+    if isinstance(source, (str, Path)):
+        return load_geometry(source, units)
+    verts, faces, normals = _in_memory(source, name)
+    if faces is None:
+        fin = np.isfinite(verts).all(axis=1)
+        verts, normals = verts[fin], (normals[fin] if normals is not None else None)
+    elif not np.isfinite(verts).all():
+        raise InputError(f"{name}: mesh has non-finite vertex coordinates")
+    if len(verts) < 3:
+        raise InputError(f"{name}: {len(verts)} finite points; at least 3 are needed")
+    notes: list[str] = []
+    scale = resolve_scale(verts, units, Path(name), notes)
+    return Geometry(verts * scale, faces, normals, scale, notes)
+
+
+def _in_memory(source, name: str):
+    """(vertices (V, 3), faces (F, 3) or None, normals (V, 3) or None) of an in-memory geometry."""
+    if isinstance(source, (np.ndarray, list, tuple)):
+        a = np.asarray(source, dtype=float)
+        if a.ndim != 2 or a.shape[1] != 3:
+            raise InputError(f"{name}: points must be an (N, 3) array, got shape {a.shape}")
+        return a, None, None
+    if hasattr(source, "points") and hasattr(source, "has_normals"):  # open3d PointCloud
+        pts = np.asarray(source.points, float)
+        return pts, None, (np.asarray(source.normals, float) if source.has_normals() else None)
+    if hasattr(source, "triangles") and hasattr(source, "vertices") and hasattr(source, "has_triangles"):
+        faces = np.asarray(source.triangles, np.int64)  # open3d TriangleMesh
+        return np.asarray(source.vertices, float), (faces if len(faces) else None), None
+    if type(source).__module__.startswith("trimesh"):
+        faces = getattr(source, "faces", None)
+        faces = np.asarray(faces, np.int64) if faces is not None and len(faces) else None
+        return np.asarray(source.vertices, float), faces, None
+    raise InputError(f"{name}: expected a file path, an (N, 3) array, an open3d PointCloud or TriangleMesh, or "
+                     f"a trimesh object; got {type(source).__name__}")
