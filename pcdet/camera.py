@@ -50,11 +50,14 @@ class Camera:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
     def to_dict(self) -> dict:
+        """The camera as camera.json holds it (``depth_scale`` in mm per raw unit); ``from_dict`` reads it back."""
         return {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,
                 "width": self.width, "height": self.height, "depth_scale": self.depth_scale}
 
     @classmethod
     def from_K(cls, K, width: int, height: int, depth_scale: float = 1.0) -> "Camera":
+        """A camera from a (3, 3) intrinsic matrix, the image size (pixels) and ``depth_scale`` (mm per raw
+        unit)."""
         K = np.asarray(K, dtype=float).reshape(3, 3)
         return cls(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), int(width), int(height),
                    float(depth_scale))

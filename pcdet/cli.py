@@ -422,6 +422,7 @@ def version():
 
 
 def main():
+    """Entry point of the ``pcdet`` command: runs the app, Ctrl-C ends with exit code 130."""
     try:
         app()
     except KeyboardInterrupt:

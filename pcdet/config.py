@@ -54,6 +54,7 @@ class PipelineConfig:
     verify: VerifyConfig = param(VerifyConfig, "verification against the depth, and selection")
 
     def to_dict(self) -> dict:
+        """Every field as nested dicts (what result files record as ``pipeline``)."""
         return dataclasses.asdict(self)
 
     def replace(self, **changes) -> "PipelineConfig":

@@ -53,6 +53,7 @@ class Detection:
                 f"at ({x:.3f}, {y:.3f}, {z:.3f}) m)")
 
     def to_dict(self) -> dict:
+        """The detection as the detections JSON stores it (pose rounded to 1e-9)."""
         return {"model": self.model, "obj_id": self.obj_id, "score": round(float(self.score), 6),
                 "T_cam_model": np.round(self.T_cam_model, 9).tolist(), "n_inliers": int(self.n_inliers),
                 "group_size": int(self.group_size),

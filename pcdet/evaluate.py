@@ -47,6 +47,8 @@ class Evaluation:
         return out
 
     def to_dict(self) -> dict:
+        """Summaries, false positives, warnings and per-instance nearest errors, as ``pcdet eval --json`` writes
+        them."""
         return {"overall": self.overall, "per_object": {str(k): v for k, v in self.per_object.items()},
                 "false_positives": {str(k): v for k, v in self.false_positives.items()},
                 "warnings": self.warnings, "instances": self.instances()}

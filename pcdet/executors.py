@@ -92,10 +92,10 @@ def map_chunks(fn: Callable[[Any, Any], Any], shared: Any, chunks: Sequence[Any]
 def start_local_ray(cpus: int):
     """Start a Ray instance on this machine that accepts connections from this machine only: every Ray server
     listens on the loopback interface (Ray's single-node mode, chosen before Ray is imported) and there is no
-    dashboard (Ray 2.59 and later also require a token on local instances). Returns the ``ray`` module. Refuses (and shuts the
-    instance down) when Ray still picked a network address, which happens when Ray was imported before pcdet
-    could choose the mode: set ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0`` before importing Ray, or start Ray
-    yourself and pcdet will use it."""
+    dashboard (Ray 2.59 and later also require a token on local instances). Returns the ``ray`` module.
+    Refuses (and shuts the instance down) when Ray still picked a network address, which happens when Ray was
+    imported before pcdet could choose the mode: set ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0`` before importing
+    Ray, or start Ray yourself and pcdet will use it."""
     key = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
     saved = os.environ.get(key)
     if "ray" not in sys.modules:

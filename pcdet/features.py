@@ -11,6 +11,8 @@ from .params import check_positive, param
 
 @dataclass(frozen=True)
 class FeatureConfig:
+    """FPFH descriptors and the support of the SHOT local reference frames."""
+
     radius: float = param(0.025, "m; FPFH support radius")
     max_nn: int = param(100, "most neighbours in an FPFH")
     lrf_radius: float = param(0.0, "m; SHOT local reference frame support (Hough grouping); 0: features.radius")

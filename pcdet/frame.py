@@ -54,6 +54,7 @@ class Frame:
 
     @property
     def shape(self) -> tuple[int, int]:
+        """(H, W) of the depth image."""
         return self.depth.shape
 
     def points(self) -> tuple[np.ndarray, np.ndarray]:

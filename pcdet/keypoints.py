@@ -13,6 +13,8 @@ from .params import check_positive, param
 
 @dataclass(frozen=True)
 class KeypointConfig:
+    """How keypoints are chosen on scene and model clouds."""
+
     method: str = param("voxel", "'voxel' (one sample per cell of `spacing`) or 'iss'")
     spacing: float = param(0.008, "m; keypoint spacing for the voxel method")
     iss_salient_radius: float = param(0.012, "m; ISS salient radius")

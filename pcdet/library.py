@@ -38,6 +38,7 @@ class ModelLibrary:
         return f"ModelLibrary({len(self)} models: {names}{more})"
 
     def by_id(self, obj_id: int) -> ObjectModel:
+        """The model with BOP id ``obj_id`` (``KeyError`` when none)."""
         for m in self.models:
             if m.obj_id == obj_id:
                 return m
@@ -52,6 +53,7 @@ class ModelLibrary:
 
     @property
     def notes(self) -> list[str]:
+        """What loading the models noted (units detected, warnings), model by model."""
         return [n for m in self.models for n in m.notes]
 
     @classmethod

@@ -12,6 +12,8 @@ from .params import check_positive, param
 
 @dataclass(frozen=True)
 class MatchingConfig:
+    """Descriptor matching: how many candidates per scene keypoint, ratio and mutual tests."""
+
     k: int = param(4, "candidate model keypoints kept per scene keypoint (nearest in FPFH space)")
     ratio: float = param(1.0, "Lowe ratio test on the nearest two (1.0: off, keep k)")
     mutual: bool = param(False, "keep only mutual nearest neighbours")
@@ -36,6 +38,7 @@ class Candidates:
 
     @property
     def k(self) -> int:
+        """Candidates per scene keypoint (columns of the table)."""
         return self.model.shape[1]
 
     def __len__(self) -> int:

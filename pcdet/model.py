@@ -46,6 +46,7 @@ class ObjectModel:
 
     @property
     def is_mesh(self) -> bool:
+        """Whether the model has triangles (a mesh) rather than points only."""
         return self.faces is not None and len(self.faces) > 0
 
     def __repr__(self) -> str:

@@ -35,6 +35,7 @@ def _model_params(cfg: PipelineConfig) -> dict:
 
 
 def default_cache_dir() -> Path:
+    """``$XDG_CACHE_HOME/pcdet/models`` (default ``~/.cache/pcdet/models``)."""
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(base) / "pcdet" / "models"
 

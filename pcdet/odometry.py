@@ -109,6 +109,7 @@ class Odometry:
         self.gap += 1
 
     def step(self, frame: Frame) -> np.ndarray:
+        """The next frame's ``T_first_cam`` (4, 4), registering it against the previous one (and KISS-ICP's map)."""
         cfg = self.cfg
         pts, pix = frame.points()
         z = pts[:, 2]

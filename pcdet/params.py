@@ -16,6 +16,7 @@ def param(default, doc: str):
 
 
 def check_positive(obj, *names: str) -> None:
+    """``ConfigError`` naming the class and field unless every named field is > 0."""
     for n in names:
         v = getattr(obj, n)
         if not (v > 0):
@@ -23,6 +24,7 @@ def check_positive(obj, *names: str) -> None:
 
 
 def check_range(obj, name: str, lo: float, hi: float) -> None:
+    """``ConfigError`` naming the class and field unless ``lo <= value <= hi``."""
     v = getattr(obj, name)
     if not lo <= v <= hi:
         raise ConfigError(f"{type(obj).__name__}.{name} must be in [{lo}, {hi}], got {v!r}")

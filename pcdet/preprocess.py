@@ -19,6 +19,8 @@ from .params import check_positive, param
 
 @dataclass(frozen=True)
 class PreprocessConfig:
+    """Depth range, voxel grid, normals, supporting-plane removal and Euclidean clusters of the scene."""
+
     min_depth: float = param(0.1, "m; scene points nearer than this are dropped")
     max_depth: float = param(2.5, "m; scene points farther than this are dropped")
     voxel: float = param(0.004, "m; voxel grid of the scene and of model samples")
@@ -54,6 +56,8 @@ class SceneCloud:
 
 
 def preprocess(frame: Frame, cfg: PreprocessConfig, seed: int = 0) -> SceneCloud:
+    """The frame's ``SceneCloud``: points in the depth range on a voxel grid, the dominant plane and what lies
+    beyond it removed, small clusters dropped, normals toward the camera. ``seed`` drives the plane RANSAC."""
     pts, _ = frame.points()
     n_input = len(pts)
     src = frame.info.get("source")

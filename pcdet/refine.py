@@ -13,6 +13,8 @@ from .params import check_positive, param
 
 @dataclass(frozen=True)
 class RefineConfig:
+    """ICP refinement of hypotheses."""
+
     iterations: int = param(30, "ICP iterations at most")
     max_distance: float = param(0.012, "m; ICP correspondence distance")
     kernel: float = param(0.006, "m; Tukey kernel width of the point-to-plane residual")

@@ -99,7 +99,8 @@ def register(source, target, config: RegisterConfig | None = None, *, units="aut
     tf = fpfh(tp, tn, tkp, pc.features)
     grouper = make_grouper(pc.grouping)
     lrf = (lambda pts, kp: shot_lrf(pts, pts[kp], pc.features.radius)[0]) if grouper.needs_lrfs else None
-    model = ObjectModel("source", 0, str(source) if isinstance(source, (str, Path)) else "", sp, sn, sp[skp], sn[skp], sf,
+    path = str(source) if isinstance(source, (str, Path)) else ""
+    model = ObjectModel("source", 0, path, sp, sn, sp[skp], sn[skp], sf,
                         lrf(sp, skp) if lrf else np.full((len(skp), 3, 3), np.nan), diameter)
     tree = cKDTree(tp)
     scene = SceneKeypoints(tp[tkp], tn[tkp], lrfs=lrf(tp, tkp) if lrf else None, cloud_tree=tree)

@@ -35,6 +35,9 @@ from .library import ModelLibrary
 
 @dataclass
 class RunSummary:
+    """What a run did: frames detected, detections, frames kept from before, failures (frame, error), seconds per
+    frame."""
+
     images: int = 0
     detections: int = 0
     resumed: int = 0
@@ -120,9 +123,11 @@ class RunFolder:
                              + "): use another folder, or start over with --overwrite", self.path)
 
     def frame_path(self, ref: FrameRef) -> Path:
+        """The detections JSON of a frame in this folder."""
         return frame_json_path(self.path, ref)
 
     def close(self) -> None:
+        """Release the folder's lock."""
         self._lock.release()
 
 
@@ -139,10 +144,12 @@ def _differences(old, new, prefix: str = "") -> list[str]:
 
 
 def frame_json_path(out: Path, ref: FrameRef) -> Path:
+    """``out/frames/<scene>_<image>.json``, six digits each."""
     return out / "frames" / f"{ref.scene_id:06d}_{ref.im_id:06d}.json"
 
 
 def describe(ref: FrameRef) -> str:
+    """A frame named for people: ``scene S image I``."""
     return f"scene {ref.scene_id} image {ref.im_id}"
 
 

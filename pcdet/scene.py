@@ -61,6 +61,7 @@ class SceneKeypoints:
 
     @property
     def lrfs(self) -> np.ndarray | None:
+        """(S, 3, 3) SHOT frames of the keypoints (NaN where invalid), or None."""
         if callable(self._lrfs):
             return self._memo.get("lrfs", self._lrfs)
         return self._lrfs
@@ -69,6 +70,7 @@ class SceneKeypoints:
         return len(self.points)
 
     def cached(self, key: Hashable, compute: Callable[[], V]) -> V:
+        """``compute()`` once per ``key`` for this view; later calls (from any thread) get the same value."""
         return self._memo.get(key, compute)
 
 

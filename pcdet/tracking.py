@@ -65,6 +65,7 @@ class Track:
     lost: bool = False
 
     def to_dict(self) -> dict:
+        """The track as tracks.json stores it (poses rounded to 1e-9)."""
         return {"id": self.id, "model": self.model, "obj_id": self.obj_id,
                 "T_world_model": np.round(self.T_world_model, 9).tolist(),
                 "observations": [{"frame": f, "T_world_model": np.round(T, 9).tolist(), "score": round(s, 6),
@@ -83,12 +84,16 @@ class TrackingResult:
     seconds: list[float]
 
     def to_dict(self) -> dict:
+        """The tracks, camera poses and frame modes as tracks.json stores them."""
         return {"tracks": [t.to_dict() for t in self.tracks],
                 "camera_poses": [None if T is None else np.round(T, 9).tolist() for T in self.camera_poses],
                 "frame_modes": self.modes}
 
 
 class Tracker:
+    """Follows a recording frame by frame (``step``, ``run``): odometry, full detections when due,
+    ``Detector.refine`` between them, camera corrected by the objects (see the module docstring)."""
+
     def __init__(self, detector: Detector, config: TrackingConfig | None = None):
         self.det = detector
         self.cfg = config or TrackingConfig()

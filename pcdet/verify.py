@@ -27,6 +27,8 @@ from .render import mesh_depth_at, render_meshes, render_points
 
 @dataclass(frozen=True)
 class VerifyConfig:
+    """Verification against the depth and the choice of detections (global or by threshold)."""
+
     depth_tolerance: float = param(0.008, "m; rendered vs measured depth agreement")
     min_score: float = param(0.35, "acceptance threshold on the verification score")
     min_supported: int = param(40, "pixels that must agree with the model")
@@ -73,6 +75,8 @@ class Verification:
     support: np.ndarray
 
     def accepted(self, cfg: VerifyConfig) -> bool:
+        """Whether the pose passes the per-pose checks: enough supported pixels, score, see-through share,
+        penetration."""
         return (self.n_supported >= cfg.min_supported and self.score >= cfg.min_score
                 and self.n_violations <= cfg.max_violation * max(self.n_supported + self.n_violations, 1)
                 and self.penetration <= cfg.max_penetration)

@@ -11,8 +11,8 @@ PKG = Path(__file__).resolve().parent.parent / "pcdet"
 
 # lowest first; a module is placed by the longest dotted prefix listed (``image.cli`` before ``image``)
 LAYERS = [
-    ("utilities", ["errors", "params", "_o3d", "resources", "align", "camera", "cloud", "pairs", "lrf", "render", "metrics",
-                   "trajectory", "io"]),
+    ("utilities", ["errors", "params", "_o3d", "resources", "align", "camera", "cloud", "pairs", "lrf", "render",
+                   "metrics", "trajectory", "io"]),
     ("frames and readers", ["frame", "datasets"]),
     ("stages", ["preprocess", "keypoints", "features", "matching", "grouping", "refine", "verify",
                 "global_verify", "odometry", "scene", "model_views", "model", "prepared_model", "image"]),
@@ -123,3 +123,20 @@ def test_options_are_keyword_only_outside_the_command_line():
                 if len(pos) > 6:
                     long.append(f"pcdet.{name}.{node.name}: {len(pos)} positional ({', '.join(pos)})")
     assert not long, "\n".join(long)
+
+
+def test_every_public_module_class_and_function_has_a_docstring():
+    missing = []
+    for name, path in _modules().items():
+        tree = ast.parse(path.read_text())
+        if not ast.get_docstring(tree):
+            missing.append(f"pcdet.{name}")
+        for node in tree.body:
+            if isinstance(node, (ast.FunctionDef, ast.ClassDef)) and not node.name.startswith("_"):
+                if not ast.get_docstring(node):
+                    missing.append(f"pcdet.{name}.{node.name}")
+                if isinstance(node, ast.ClassDef):
+                    missing += [f"pcdet.{name}.{node.name}.{m.name}" for m in node.body
+                                if isinstance(m, ast.FunctionDef) and not m.name.startswith("_")
+                                and not ast.get_docstring(m)]
+    assert not missing, "\n".join(missing)

@@ -61,8 +61,8 @@ def test_bad_inputs_one_clear_line(scene):
     assert "cut.png: image is truncated" in _error_line(_cli(*base, "--depth", scene / "cut.png", "--camera",
                                                                  scene / "cam.json"))
     Image.fromarray(np.zeros((480, 640), np.uint8)).save(scene / "gray.png")
-    assert "gray.png: depth image is an 8-bit greyscale image; expected a single-channel 16-bit PNG" in _error_line(_cli(*base, "--depth", scene / "gray.png",
-                                                                   "--camera", scene / "cam.json"))
+    assert "gray.png: depth image is an 8-bit greyscale image; expected a single-channel 16-bit PNG" in _error_line(
+        _cli(*base, "--depth", scene / "gray.png", "--camera", scene / "cam.json"))
     Image.fromarray(np.zeros((480, 640, 3), np.uint8)).save(scene / "rgb.png")
     assert "rgb.png: depth image is a colour (RGB) image" in _error_line(_cli(*base, "--depth", scene / "rgb.png",
                                                                      "--camera", scene / "cam.json"))

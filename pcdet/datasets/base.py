@@ -73,9 +73,11 @@ class SequenceBase:
         return iter(self.images)
 
     def targets(self, ref: FrameRef) -> dict[int, int] | None:
+        """None: single-sequence formats carry no object labels."""
         return None
 
     def camera_poses(self) -> dict[FrameRef, np.ndarray] | None:
+        """None unless the format's reader overrides it with ground-truth poses."""
         return None
 
 

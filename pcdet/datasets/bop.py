@@ -53,12 +53,14 @@ class BopDataset:
 
     @classmethod
     def detect(cls, path: Path) -> bool:
+        """Whether ``path`` is a BOP split or a dataset folder holding one."""
         return _is_split(path) or any(p.is_dir() and _is_split(p) for p in path.iterdir())
 
     def __len__(self) -> int:
         return len(self.images)
 
     def source(self, img: BopImage) -> str:
+        """The depth PNG an image is read from."""
         return str(self.depth_path(img))
 
     def camera_poses(self) -> dict[BopImage, np.ndarray] | None:
@@ -75,6 +77,7 @@ class BopDataset:
         return iter(self.images)
 
     def scene_dir(self, scene_id: int) -> Path:
+        """The folder of one scene of the split."""
         return self.split_dir / f"{scene_id:06d}"
 
     def _scene_json(self, scene_id: int, name: str) -> dict:
@@ -86,9 +89,11 @@ class BopDataset:
         return self._json[key]
 
     def depth_path(self, img: BopImage) -> Path:
+        """The depth PNG of an image."""
         return self.scene_dir(img.scene_id) / "depth" / f"{img.im_id:06d}.png"
 
     def rgb_path(self, img: BopImage) -> Path | None:
+        """The colour (or grey) image of an image, or None when the dataset has none."""
         for sub, ext in (("rgb", ".png"), ("rgb", ".jpg"), ("gray", ".png"), ("gray", ".tif")):
             p = self.scene_dir(img.scene_id) / sub / f"{img.im_id:06d}{ext}"
             if p.is_file():
@@ -96,6 +101,7 @@ class BopDataset:
         return None
 
     def camera(self, img: BopImage) -> Camera:
+        """The image's camera from scene_camera.json; the size comes from camera.json or the depth PNG's header."""
         entry = self._scene_json(img.scene_id, "scene_camera.json").get(str(img.im_id))
         src = self.scene_dir(img.scene_id) / "scene_camera.json"
         if entry is None:
@@ -106,6 +112,7 @@ class BopDataset:
         return Camera.from_dict(dict(entry), path=src, width=w, height=h)
 
     def frame(self, img: BopImage) -> Frame:
+        """The image as a ``Frame`` (depth in metres, colour when present, its BOP ids in ``info``)."""
         rgb = self.rgb_path(img)
         return Frame.from_depth_png(self.depth_path(img), self.camera(img), rgb_path=rgb,
                                     info={"scene_id": img.scene_id, "im_id": img.im_id})

@@ -12,6 +12,8 @@ CLOUD_EXTS = (".ply", ".pcd", ".xyz")
 
 
 class CloudFolder(SequenceBase):
+    """A folder of point clouds as a recording: one frame per file, in file-name order (scene 1)."""
+
     format = "clouds"
 
     def __init__(self, root):
@@ -23,12 +25,15 @@ class CloudFolder(SequenceBase):
 
     @classmethod
     def detect(cls, path: Path) -> bool:
+        """Whether ``path`` holds point-cloud files."""
         return any(p.suffix.lower() in CLOUD_EXTS for p in path.iterdir() if p.is_file())
 
     def source(self, ref: FrameRef) -> str:
+        """The cloud file of a frame."""
         return str(self._files[ref.im_id])
 
     def frame(self, ref: FrameRef) -> Frame:
+        """The cloud as a ``Frame`` (``Frame.from_cloud``)."""
         f = Frame.from_cloud(self._files[ref.im_id])
         f.info.update({"scene_id": ref.scene_id, "im_id": ref.im_id})
         return f

@@ -23,6 +23,8 @@ def colour_for(folder: Path, stem: str) -> Path | None:
 
 
 class FolderRecording(SequenceBase):
+    """depth/*.png with camera.json (and optional rgb/) as a recording, in file-name order (scene 1)."""
+
     format = "folder"
     colour_dir = "rgb"
 
@@ -44,12 +46,15 @@ class FolderRecording(SequenceBase):
 
     @classmethod
     def detect(cls, path: Path) -> bool:
+        """Whether ``path`` has depth/ and camera.json."""
         return (path / "depth").is_dir() and (path / "camera.json").is_file()
 
     def source(self, ref: FrameRef) -> str:
+        """The depth PNG of a frame."""
         return str(self._depth[ref.im_id])
 
     def frame(self, ref: FrameRef) -> Frame:
+        """The frame's depth (and colour, when an image of the same stem exists) as a ``Frame``."""
         d = self._depth[ref.im_id]
         rgb = colour_for(self.root / self.colour_dir, d.stem)
         return Frame.from_depth_png(d, self.camera, rgb_path=rgb, info={"scene_id": ref.scene_id,

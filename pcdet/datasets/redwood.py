@@ -42,6 +42,8 @@ def _intrinsic_json(root: Path) -> Path | None:
 
 
 class RedwoodRecording(FolderRecording):
+    """Open3D's RGB-D sample layout (depth/, color/, an intrinsic JSON, optional .log poses) as a recording."""
+
     format = "redwood"
     colour_dir = "color"
 
@@ -67,8 +69,10 @@ class RedwoodRecording(FolderRecording):
 
     @classmethod
     def detect(cls, path: Path) -> bool:
+        """Whether ``path`` has depth/, color/ and an Open3D intrinsic JSON."""
         return (path / "depth").is_dir() and (path / "color").is_dir() and (
             any((path / n).is_file() for n in LOG_NAMES) or _intrinsic_json(path) is not None)
 
     def camera_poses(self):
+        """``T_world_cam`` per frame from the log file, or None without one."""
         return self._gt

@@ -19,6 +19,7 @@ FORMAT_HELP = ("bop (split/scene/scene_camera.json), tum (rgb.txt + depth.txt), 
 
 
 def detect_format(path) -> str:
+    """The registry name of the reader whose layout ``path`` has (``InputError`` listing the layouts when none)."""
     path = Path(path)
     if not path.is_dir():
         raise FileNotFoundError(f"{path}: recording folder not found")

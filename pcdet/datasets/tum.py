@@ -46,6 +46,8 @@ def nearest(stamps: np.ndarray, t: float, max_dt: float) -> int:
 
 
 class TumRecording(SequenceBase):
+    """A TUM RGB-D recording (depth.txt, rgb.txt, optional groundtruth.txt) as a recording (scene 1)."""
+
     format = "tum"
 
     def __init__(self, root, max_dt: float = 0.02):
@@ -75,15 +77,20 @@ class TumRecording(SequenceBase):
 
     @classmethod
     def detect(cls, path: Path) -> bool:
+        """Whether ``path`` has depth.txt and rgb.txt."""
         return (path / "depth.txt").is_file() and (path / "rgb.txt").is_file()
 
     def source(self, ref: FrameRef) -> str:
+        """The depth PNG of a frame."""
         return str(self.root / self._depth[ref.im_id][1][0])
 
     def frame(self, ref: FrameRef) -> Frame:
+        """The frame as a ``Frame`` (depth / 5000 unless camera.json says otherwise), its time stamp in ``info``."""
         rgb = self._rgb[ref.im_id]
         return Frame.from_depth_png(self.source(ref), self.camera, rgb_path=self.root / rgb if rgb else None,
                                     info={"scene_id": ref.scene_id, "im_id": ref.im_id, "timestamp": ref.timestamp})
 
     def camera_poses(self):
+        """Ground-truth ``T_world_cam`` per frame (nearest stamp within ``max_dt``), or None without
+        groundtruth.txt."""
         return self._gt

@@ -29,6 +29,8 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class ConsistencyConfig:
+    """Options of geometric-consistency grouping."""
+
     edge_tolerance: float = param(0.006, "m; pair-length difference allowed between scene and model pairs")
     normal_tolerance_deg: float = param(20.0, "degrees; pair-angle difference allowed (point-pair features)")
     max_groups: int = param(12, "largest consistent groups kept per model")
@@ -49,6 +51,7 @@ class ConsistencyGrouper:
 
     def group(self, scene: "SceneKeypoints", model: "PreparedModel", candidates: Candidates,
               rng: np.random.Generator) -> list[Hypothesis]:
+        """Hypotheses from the consistent groups of ``candidates`` (see the module docstring)."""
         m, c, min_inl = model.model, self.cfg, self.common.min_inliers
         cand = candidates.model
         S, k = cand.shape

@@ -32,6 +32,8 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class HoughConfig:
+    """Options of 6-DoF Hough voting."""
+
     bin: float = param(0.015, "m; Hough accumulator cell size")
     min_votes: float = param(4.0, "votes a Hough peak needs (trilinear weights)")
     rotation_tol_deg: float = param(20.0, "degrees; a peak's voters must agree on the rotation within this")
@@ -53,6 +55,7 @@ class HoughGrouper:
 
     def group(self, scene: "SceneKeypoints", model: "PreparedModel", candidates: Candidates,
               rng: np.random.Generator) -> list[Hypothesis]:
+        """Hypotheses from the vote peaks of ``candidates`` (see the module docstring); needs ``scene.lrfs``."""
         m, c, min_inl = model.model, self.cfg, self.common.min_inliers
         cand = candidates.model
         scene_lrf, model_pts, model_lrf = scene.lrfs, m.kp_points, m.kp_lrfs

@@ -21,4 +21,5 @@ class Hypothesis:
 
     @property
     def n_inliers(self) -> int:
+        """Number of correspondences that agree with the pose."""
         return int(len(self.inliers))

@@ -37,6 +37,8 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class RansacConfig:
+    """Options of multi-instance RANSAC grouping."""
+
     iterations: int = param(800, "triplets drawn per cluster and instance round")
     edge_tolerance: float = param(0.006, "m; pair-length difference allowed between scene and model pairs")
     normal_tolerance_deg: float = param(20.0, "degrees; pair-angle difference allowed (point-pair features)")
@@ -67,6 +69,8 @@ class RansacGrouper:
 
     def group(self, scene: "SceneKeypoints", model: "PreparedModel", candidates: Candidates,
               rng: np.random.Generator) -> list[Hypothesis]:
+        """Hypotheses for up to ``max_instances`` instances of ``model`` per scene cluster; ``rng`` draws the
+        triplets."""
         m, c = model.model, self.cfg
         cand = candidates.model
         S, k = cand.shape

@@ -60,6 +60,8 @@ def _peaks(acc: np.ndarray, min_votes: float, size, max_peaks: int, wrap_axis: i
 
 @dataclass
 class Line:
+    """A line ``x cos t - y sin t = d`` (d in pixels, t in degrees) and its votes."""
+
     d: float
     theta_deg: float
     votes: float
@@ -130,6 +132,8 @@ def hough_lines(image, *, d_res: float = 1.0, theta_res_deg: float = 1.0, thresh
 
 @dataclass
 class Circle:
+    """A circle: centre (x, y) and radius r in pixels, and its score."""
+
     x: float
     y: float
     r: float

@@ -60,6 +60,7 @@ class FolderLock:
         self._fd: int | None = None
 
     def acquire(self) -> "FolderLock":
+        """Take the lock (``InputError`` when another process holds it); returns self."""
         self.folder.mkdir(parents=True, exist_ok=True)
         path = self.folder / ".pcdet.lock"
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
@@ -78,6 +79,7 @@ class FolderLock:
         return self
 
     def release(self) -> None:
+        """Give the lock up (nothing happens when it is not held)."""
         if self._fd is not None:
             fcntl.flock(self._fd, fcntl.LOCK_UN)
             os.close(self._fd)

@@ -18,6 +18,7 @@ def detections_json(frame_info: dict, result, pipeline: dict, version: str) -> s
 
 
 def write_detections_json(path, frame_info: dict, result, pipeline: dict, version: str) -> Path:
+    """Write ``detections_json`` atomically to ``path``."""
     return atomic_write_text(path, detections_json(frame_info, result, pipeline, version))
 
 
