@@ -29,8 +29,9 @@ from .io.outputs import check_file, check_folder
 from .resources import shipped
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  rich_markup_mode=None,  # help texts are plain text: "pcdet[ray]" keeps its brackets
                   help="Find known rigid objects in depth data and estimate their 6-DoF poses.")
-config_app = typer.Typer(no_args_is_help=True, help="Pipeline configuration.")
+config_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Pipeline configuration.")
 app.add_typer(config_app, name="config")
 app.add_typer(image_app, name="image")
 
@@ -267,18 +268,23 @@ def register(source: Path = typer.Argument(..., help="Model or cloud to move (me
 
     if out:
         check_file(out, "registration JSON")
-    with console.status("registering"):
+    with console.status("registering"), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         r = do_register(source, target, RegisterConfig(voxel=voxel, grouping=grouping or "ransac", seed=seed),
                         units=units)
+    for w in caught:
+        console.print(f"[yellow]warning:[/] {escape(str(w.message))}", highlight=False, soft_wrap=True)
     np.set_printoptions(precision=6, suppress=True)
     out_console.print("T_target_source =")
     out_console.print(str(r.T_target_source))
-    console.print(f"fitness {r.fitness:.3f}, rmse {r.rmse_m * 1000:.2f} mm, {r.n_inliers} inlier matches, "
+    console.print(f"fitness {r.fitness:.3f}, coverage {r.coverage:.3f}, rmse {r.rmse_m * 1000:.2f} mm, "
+                  f"{r.n_inliers} inlier matches, "
                   f"{sum(r.timing_s.values()):.2f} s")
     if out:
         atomic_write_text(out, json.dumps({"source": str(source), "target": str(target),
                                            "T_target_source": np.round(r.T_target_source, 9).tolist(),
-                                           "fitness": r.fitness, "rmse_m": r.rmse_m, "n_inliers": r.n_inliers,
+                                           "fitness": r.fitness, "coverage": r.coverage, "rmse_m": r.rmse_m,
+                                           "n_inliers": r.n_inliers,
                                            "timing_s": r.timing_s, "pcdet_version": __version__}, indent=1))
         console.print(f"written: {out}")
 

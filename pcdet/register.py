@@ -5,12 +5,14 @@ Both may be meshes or point clouds (any format ``load_model`` reads); units are 
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .align import transform
 from .cloud import diameter as cloud_diameter
 from .cloud import outward_normals, voxel_downsample
 from .config import PipelineConfig, RefineConfig
@@ -25,6 +27,16 @@ from .model import ObjectModel
 from .prepared_model import PreparedModel
 from .refine import RegistrationResult, icp
 from .scene import SceneKeypoints
+
+
+# A model on one of its partial scans explains all of the scan (coverage >= 0.97 on the bunny) but half of the
+# model (fitness 0.51-0.54); two scans explain each other (0.92 / 0.97); a box on a ball, or the bunny on a
+# ball, reach at most 0.32. Below this on both sides a registration is reported as doubtful.
+LOW_OVERLAP = 0.5
+
+
+class RegistrationWarning(UserWarning):
+    """A registration that explains little of either input (``fitness`` and ``coverage`` both < 0.5)."""
 
 
 @dataclass(frozen=True)
@@ -42,7 +54,9 @@ class RegisterConfig:
 
 @dataclass
 class Registration:
-    """The alignment and how it was found. ``T_target_source`` (4, 4) maps source points into the target."""
+    """The alignment and how it was found. ``T_target_source`` (4, 4) maps source points into the target;
+    ``fitness``: share of the source samples on the target after alignment; ``coverage``: share of the target
+    samples on the source (both within 1.5 voxel); ``rmse_m``: point-to-plane residual of the fitting part."""
 
     T_target_source: np.ndarray
     fitness: float
@@ -50,6 +64,7 @@ class Registration:
     n_inliers: int
     candidates: int
     timing_s: dict = field(default_factory=dict)
+    coverage: float = 0.0
 
 
 def _prepared(points: np.ndarray, normals: np.ndarray | None, voxel: float):
@@ -121,8 +136,14 @@ def register(source, target, config: RegisterConfig | None = None, *, units="aut
     rc2 = RefineConfig(iterations=cfg.icp_iterations, max_distance=1.5 * voxel, kernel=voxel)
     best = icp(sp, tp, tn, best.T_target_source, rc2, target_tree=tree)
     t3 = time.perf_counter()
+    d, _ = cKDTree(transform(best.T_target_source, sp)).query(tp, distance_upper_bound=1.5 * voxel)
+    coverage = float(np.isfinite(d).mean())
+    if max(best.fitness, coverage) < LOW_OVERLAP:
+        warnings.warn(f"after alignment only {best.fitness:.0%} of the source lies on the target and {coverage:.0%} "
+                      f"of the target on the source (within {1.5 * voxel * 1000:.1f} mm): the inputs may not "
+                      "overlap, or may not be the same object", RegistrationWarning, stacklevel=2)
     return Registration(best.T_target_source, best.fitness, best.rmse_m, best_h.n_inliers, len(hyps),
-                        {"load": t1 - t0, "global": t2 - t1, "icp": t3 - t2})
+                        {"load": t1 - t0, "global": t2 - t1, "icp": t3 - t2}, coverage)
 
 
 def _surface(g: Geometry) -> tuple[np.ndarray, np.ndarray | None]:

@@ -108,3 +108,15 @@ def test_cache_rebuilds_on_a_changed_file_and_on_a_corrupt_entry(tmp_path, monke
     bigger = load_model(tmp_path / "part.ply", cache_dir=cache)
     assert builds == [1, 1] and len(list(cache.glob("*.npz"))) == 2
     assert bigger.diameter == pytest.approx(1.5 * first.diameter, rel=1e-6)
+
+
+@pytest.mark.parametrize("size, words", [(80000.0, "80000 units wide, 80 m when read as millimetres"),
+                                         (0.001, "0.001 units wide, 1 mm when read as metres")])
+def test_implausible_sizes_are_refused_unless_units_are_given(tmp_path, size, words):
+    """An 80 m or a 1 mm 'object' means the units are not what they seem: refused in auto mode, read when
+    the units are given."""
+    trimesh.creation.box((size, size / 2, size / 3)).export(tmp_path / "b.ply")
+    with pytest.raises(InputError, match=words):
+        load_model(tmp_path / "b.ply", cache_dir=False)
+    geometry = __import__("pcdet.io.models", fromlist=["load_geometry"]).load_geometry
+    assert geometry(tmp_path / "b.ply", units="mm" if size > 1 else "m").vertices.shape[1] == 3

@@ -13,7 +13,8 @@ from ..errors import InputError
 from ..io.jsonfile import read_json
 from ..io.outputs import check_file
 
-image_app = typer.Typer(no_args_is_help=True, help="Recognition from 2D views: LCM, Hough, homographies.")
+image_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None,
+                        help="Recognition from 2D views: LCM, Hough, homographies.")
 
 
 def _lcm_part(name: str, spec: dict, thresholds: list[float], table) -> dict[float, bool]:

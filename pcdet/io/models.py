@@ -17,6 +17,8 @@ MODEL_SUFFIXES = MESH_SUFFIXES | CLOUD_ONLY_SUFFIXES
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 # An object wider than this many "metres" is certainly in mm (table-top and warehouse objects are < 3 m).
 MM_DETECT_EXTENT = 3.0
+# sizes (largest extent, m) of the objects pcdet is for; outside, "auto" units are refused as unclear
+PLAUSIBLE_SIZE_M = (0.002, 3.0)
 
 
 class UnitsWarning(UserWarning):
@@ -63,14 +65,22 @@ def _read_geometry(path: Path):
 
 def resolve_scale(verts: np.ndarray, units, path: Path, notes: list[str]) -> float:
     """The factor from file units to metres: ``units`` ("m", "cm", "mm" or a number), or with "auto"/None 0.001
-    when the model is over 3 units wide (noted in ``notes``), else 1. Forced units that make the model over 3 m
-    wide are warned about (``UnitsWarning``)."""
+    when the model is over 3 units wide (noted in ``notes``), else 1. A size that no object pcdet looks for has
+    (under 2 mm or over 3 m, after reading) is refused in "auto" mode, since it means the units are not what
+    they seem: give ``units`` to read such a model anyway. Forced units that make the model over 3 m wide are
+    warned about (``UnitsWarning``)."""
     extent = float(np.ptp(verts, axis=0).max())
     if units in (None, "auto"):
-        if extent > MM_DETECT_EXTENT:
+        scale = 0.001 if extent > MM_DETECT_EXTENT else 1.0
+        size = extent * scale
+        if not PLAUSIBLE_SIZE_M[0] <= size <= PLAUSIBLE_SIZE_M[1]:
+            read = "millimetres" if scale == 0.001 else "metres"
+            raise InputError(f"model is {extent:.6g} units wide, {_metres(size)} when read as {read}: no object "
+                             "pcdet detects is that size, so the units are unclear; give them (--units m, cm or "
+                             "mm; units= in Python) to read it anyway", path)
+        if scale == 0.001:
             notes.append(f"{path.name}: {extent:.0f} units wide, read as millimetres")
-            return 0.001
-        return 1.0
+        return scale
     scale = UNITS.get(units) if isinstance(units, str) else float(units)
     if scale is None:
         raise InputError(f"unknown units {units!r}; use one of {sorted(UNITS)}, 'auto' or a number", path)
@@ -78,6 +88,10 @@ def resolve_scale(verts: np.ndarray, units, path: Path, notes: list[str]) -> flo
         warnings.warn(f"{path}: model is {extent * scale:.1f} m wide when read as {units}; is it in millimetres?",
                       UnitsWarning, stacklevel=3)
     return scale
+
+
+def _metres(x: float) -> str:
+    return f"{x * 1000:.3g} mm" if x < 1 else f"{x:.3g} m"
 
 
 def load_geometry(path, units="auto") -> Geometry:
