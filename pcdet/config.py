@@ -125,15 +125,18 @@ def _typed(value, typ, name: str, source):
 
 
 def _preset_path(name_or_path: str | Path) -> Path:
+    """A pipeline file: an existing file as given, else the preset ``pipelines/<name>.toml`` (a folder that happens
+    to have a preset's name, such as a dataset called ``crowded``, does not hide the preset)."""
     p = Path(name_or_path)
-    if not p.suffix and not p.exists():
-        p = PIPELINES_DIR / f"{name_or_path}.toml"
-        if not p.is_file():
-            names = sorted(q.stem for q in PIPELINES_DIR.glob("*.toml"))
-            raise FileNotFoundError(f"{name_or_path}: no such pipeline preset; available: {names}")
-    if not p.is_file():
-        raise FileNotFoundError(f"{p}: pipeline file not found")
-    return p
+    if p.is_file():
+        return p
+    if not p.suffix:
+        preset = PIPELINES_DIR / f"{name_or_path}.toml"
+        if preset.is_file():
+            return preset
+        names = sorted(q.stem for q in PIPELINES_DIR.glob("*.toml"))
+        raise FileNotFoundError(f"{name_or_path}: no such pipeline preset; available: {names}")
+    raise FileNotFoundError(f"{p}: pipeline file not found")
 
 
 def _merge(a: dict, b: dict) -> dict:
@@ -150,7 +153,7 @@ def load_pipeline(name_or_path: str | Path | None = None) -> PipelineConfig:
     the Hough preset's grouping."""
     if name_or_path is None:
         return PipelineConfig()
-    parts = [name_or_path] if isinstance(name_or_path, Path) or Path(name_or_path).exists() \
+    parts = [name_or_path] if isinstance(name_or_path, Path) or Path(name_or_path).is_file() \
         else str(name_or_path).split("+")
     data: dict = {}
     for part in parts:

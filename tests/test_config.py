@@ -1,5 +1,7 @@
 """Pipeline presets: default.toml sets every parameter to the code's defaults; bad files fail clearly."""
 
+import dataclasses
+
 import pytest
 
 from pcdet.config import (
@@ -101,3 +103,10 @@ def test_layering_overrides_the_same_field_and_keeps_the_rest(tmp_path):
     assert cfg.verify.clutter_weight == 2.0 and cfg.refine.iterations == 12
     assert cfg.verify.depth_tolerance == PipelineConfig().verify.depth_tolerance
     assert load_pipeline(f"{b}+{a}").verify.min_score == 0.5
+
+
+def test_a_folder_named_like_a_preset_does_not_hide_it(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "crowded").mkdir()  # e.g. a dataset made by `pcdet synth --out crowded`
+    assert load_pipeline("crowded+hough") == load_pipeline(PIPELINES_DIR / "crowded.toml").replace(
+        grouping=dataclasses.asdict(load_pipeline("hough").grouping))
