@@ -58,3 +58,9 @@ def test_bad_inputs_give_one_error_line(tmp_path):
     assert r.exit_code != 0 and "not valid JSON" in r.output
     r = runner.invoke(app, ["image", "hough", str(tmp_path / "missing.png"), "--out", str(tmp_path / "o.png")])
     assert r.exit_code != 0 and "not found" in r.output
+    # JSON of the wrong shape: the file and what it lacks, no traceback
+    (tmp_path / "v.json").write_text('{"views": [[[0, 0], [1, 0], [0, 1], [1, 1]]], "points": [[0, 0]]}')
+    r = runner.invoke(app, ["image", "homography", str(tmp_path / "v.json")])
+    assert r.exit_code != 0 and "v.json: a matches file needs 'src', 'dst'" in r.output and "Traceback" not in r.output
+    r = runner.invoke(app, ["image", "lcm", str(tmp_path / "v.json")])
+    assert r.exit_code != 0 and "v.json: the linear combination method needs at least 3 model views" in r.output

@@ -13,6 +13,14 @@ from ..errors import InputError
 from ..io.jsonfile import read_json
 from ..io.outputs import check_file
 
+def _need(doc: dict, keys: tuple[str, ...], path, what: str) -> None:
+    """``InputError`` naming the file and the missing fields unless ``doc`` has every key."""
+    missing = [k for k in keys if k not in doc]
+    if missing:
+        raise InputError(f"{what} needs {', '.join(repr(k) for k in keys)}; missing {', '.join(map(repr, missing))}",
+                         path)
+
+
 image_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None,
                         help="Recognition from 2D views: LCM, Hough, homographies.")
 
@@ -49,9 +57,16 @@ def lcm(views_json: Path = typer.Argument(..., help="JSON: views, points, check,
     @guard
     def go():
         doc = read_json(views_json)
+        parts = doc["parts"] if isinstance(doc.get("parts"), dict) else {"object": doc}
+        for name, spec in parts.items():
+            if not isinstance(spec, dict):
+                raise InputError(f"part {name!r} must be an object with 'views' and 'points'", views_json)
+            _need(spec, ("views", "points"), views_json, f"part {name!r}" if "parts" in doc else "an LCM file")
         thresholds = [float(t) for t in doc.get("thresholds", [0.2])]
-        parts = doc["parts"] if "parts" in doc else {"object": doc}
-        decisions = {name: _lcm_part(name, spec, thresholds, typer.echo) for name, spec in parts.items()}
+        try:
+            decisions = {name: _lcm_part(name, spec, thresholds, typer.echo) for name, spec in parts.items()}
+        except InputError as e:
+            raise InputError(e.problem, e.path or views_json) from None
         for t in thresholds:
             per = {n: d.get(t) for n, d in decisions.items()}
             if any(v is None for v in per.values()):
@@ -135,7 +150,11 @@ def homography(matches_json: Path = typer.Argument(..., help='JSON: {"src": [[x,
         if out:
             check_file(out, "JSON")
         doc = read_json(matches_json)
-        r = (ransac_affine if affine else ransac_homography)(doc["src"], doc["dst"], threshold, seed=seed)
+        _need(doc, ("src", "dst"), matches_json, "a matches file")
+        try:
+            r = (ransac_affine if affine else ransac_homography)(doc["src"], doc["dst"], threshold, seed=seed)
+        except InputError as e:
+            raise InputError(e.problem, e.path or matches_json) from None
         typer.echo("affine" if affine else "homography")
         for row in r.H:
             typer.echo("  " + " ".join(f"{v:14.8g}" for v in row))
