@@ -369,6 +369,65 @@ def _print_eval(ev, lib):
 
 @app.command()
 @guard
+def diagnose(dataset: Path = typer.Argument(..., help="BOP dataset with ground truth."),
+             models: Optional[Path] = typer.Option(None, help="Model folder (default: DATASET/models)."),
+             targets: Optional[str] = typer.Option("gt", help="'gt': give the detector the objects present (BOP "
+                                                   "localisation); 'none': search the whole library."),
+             pipeline: Optional[str] = typer.Option(None, help="Preset name or TOML file."),
+             grouping: Optional[str] = typer.Option(None, help="Grouping method: ransac, gc or hough."),
+             metric: str = typer.Option("add", help="Pose error: add or adds (for symmetric objects)."),
+             limit: int = typer.Option(0, help="Diagnose only the first N frames (0: all)."),
+             units: str = typer.Option("auto", help="Model units."),
+             json_out: Optional[Path] = typer.Option(None, "--json", help="Write every instance's diagnosis."),
+             ):
+    """Attribute every ground-truth instance to the stage that found or lost it (pcdet.diagnose)."""
+    from .datasets.bop import BopDataset
+    from .detector import Detector
+    from .diagnose import STAGES, Diagnosis, diagnose_frame
+    from .io.atomic import atomic_write_text
+
+    if targets not in ("gt", "none"):
+        fail(f"--targets takes gt or none, got {targets!r}")
+    if metric not in ("add", "adds"):
+        fail(f"--metric takes add or adds, got {metric!r}")
+    if json_out:
+        check_file(json_out, "diagnosis JSON")
+    cfg = _pipeline(pipeline, None, grouping)
+    ds = BopDataset(dataset)
+    models = models or ds.models_dir
+    if models is None:
+        fail(f"{dataset}: no models/ folder; pass --models")
+    det = Detector(_library(models, cfg, units), cfg)
+    refs = ds.images[:limit] if limit else ds.images
+    rows = []
+    with _progress(detections=False, rate=True) as prog:
+        task = prog.add_task("diagnosing", total=len(refs))
+        for ref in refs:
+            rows += diagnose_frame(det, ds.frame(ref), ds.gt(ref), ds.targets(ref) if targets == "gt" else None,
+                                   metric=metric, scene_id=ref.scene_id, im_id=ref.im_id)
+            prog.update(task, advance=1)
+    diag = Diagnosis(rows)
+    t = Table(title=f"{metric.upper()} in diameters; kp: scene keypoints on the instance / with a correct match")
+    for c in ("scene", "image", "obj", "visib", "kp", "raw", "best raw", "refined", "best refined", "rank",
+              "kept", "kept score", "best score", "stage"):
+        t.add_column(c, justify="left" if c == "stage" else "right")
+    for r in rows:
+        vis = "-" if r.visib_fract is None else f"{r.visib_fract:.2f}"
+        t.add_row(str(r.scene_id), str(r.im_id), str(r.obj_id), vis,
+                  f"{r.keypoints_on}/{r.keypoints_matched}", str(r.raw_hypotheses), f"{r.best_raw:.3f}",
+                  "yes" if r.best_raw_refined else "no", f"{r.best_refined:.3f}", str(r.rank), f"{r.kept_error:.3f}",
+                  f"{r.kept_score:.3f}", f"{r.best_terms.get('score', -1):.3f}", r.stage)
+    out_console.print(t)
+    secs = [r.seconds for r in rows]
+    out_console.print("  ".join(f"{k}: {v}" for k, v in diag.stages.items() if k in STAGES)
+                      + f"  (of {len(rows)}; median {np.median(secs) if secs else 0:.2f} s/frame)")
+    if json_out:
+        atomic_write_text(json_out, json.dumps(diag.to_dict(), indent=1))
+        console.print(f"written: {json_out}")
+
+
+@app.command()
+@guard
 def demo(out: Path = typer.Option(Path("demo_out"), help="Output folder."),
          scenes: int = typer.Option(3, help="Synthetic scenes to make."),
          seed: int = typer.Option(0, help="Random seed."),

@@ -144,6 +144,26 @@ def segment_plane(points: np.ndarray, distance: float, iterations: int = 200,
     return Plane(nrm, off, inl)
 
 
+def support_region(points: np.ndarray, plane: Plane, max_height: float, min_height: float) -> np.ndarray:
+    """(N,) bool: the points that stand on ``plane``: between ``min_height`` and ``max_height`` m above it
+    (on the camera's side) and inside the outline of its inliers (their convex hull, in the plane)."""
+    from scipy.spatial import ConvexHull, Delaunay
+
+    n = plane.normal
+    u = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    uv = np.stack([points @ u, points @ v], axis=1)
+    h = points @ n + plane.offset
+    inside = np.zeros(len(points), bool)
+    try:
+        outline = uv[plane.inliers][ConvexHull(uv[plane.inliers]).vertices]
+        inside = Delaunay(outline).find_simplex(uv) >= 0
+    except Exception:  # qhull: a degenerate (collinear) plane has no outline; nothing stands on it
+        pass
+    return inside & (h > min_height) & (h < max_height)
+
+
 def euclidean_clusters(points: np.ndarray, tolerance: float, min_size: int = 1) -> np.ndarray:
     """Label (N,) int64 of connected components with links shorter than ``tolerance`` (m); -1 for clusters
     smaller than ``min_size``. Labels are numbered by decreasing cluster size (ties by first point)."""

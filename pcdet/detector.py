@@ -6,6 +6,7 @@ verification -> selection (global or by threshold).
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -19,14 +20,15 @@ from .cloud import estimate_normals, voxel_downsample
 from .config import PipelineConfig
 from .features import fpfh
 from .frame import Frame
-from .global_verify import candidate_terms, select
+from .global_verify import candidate_terms, same_object_conflicts, select
 from .grouping import Hypothesis, make_grouper
+from .grouping.common import distinct_poses
 from .keypoints import select_keypoints
 from .library import ModelLibrary
 from .matching import match_features
 from .prepared_model import PreparedModel
 from .preprocess import preprocess
-from .refine import RegistrationResult, icp
+from .refine import RefineConfig, RegistrationResult, icp
 from .scene import Scene
 from .verify import Verification, bbox_pixels, resolve_conflicts, verify
 
@@ -77,6 +79,27 @@ class DetectionResult:
 
 
 @dataclass
+class Trace:
+    """What one ``detect`` call went through, for diagnosis (``Detector.detect(..., trace=Trace())`` fills it):
+    the scene; per model index the candidate table (all scene keypoints); every raw hypothesis and the quick
+    first-look verification of each; which got the coarse ICP and which were refined (indices into
+    ``hypotheses``), their ICP
+    results and verifications; the indices into ``refined`` that passed the per-pose checks, in score order,
+    and those finally kept."""
+
+    scene: Scene | None = None
+    candidates: dict = field(default_factory=dict)
+    hypotheses: list = field(default_factory=list)
+    first_look: list = field(default_factory=list)
+    coarse: list = field(default_factory=list)
+    refined: list = field(default_factory=list)
+    registrations: list = field(default_factory=list)
+    verifications: list = field(default_factory=list)
+    accepted: list = field(default_factory=list)
+    kept: list = field(default_factory=list)
+
+
+@dataclass
 class Refinement:
     """What ``Detector.refine`` made of a predicted pose. ``in_view`` is False when the pose puts the model
     behind the camera or out of the image (nothing can be said about it); ``detection`` is None when too little
@@ -84,6 +107,26 @@ class Refinement:
 
     in_view: bool
     detection: Detection | None = None
+
+
+def _best_per_model(indices: list[int], looks, hyps: list[Hypothesis], n: int) -> list[int]:
+    """Of ``indices`` (into ``hyps``), the ``n`` best-scored by ``looks[j].score`` per model, best first (ties by
+    index), models in order of their best."""
+    per_model: dict[int, list[int]] = {}
+    for j in sorted(indices, key=lambda j: (-looks[j].score, j)):
+        per_model.setdefault(hyps[j].model_index, []).append(j)
+    return [j for js in per_model.values() for j in js[:n]]
+
+
+def _distinct_per_model(indices: list[int], looks, hyps: list[Hypothesis], poses: dict, library) -> list[int]:
+    """``indices`` without those whose pose (``poses[j]``) repeats a better-looking one of the same model
+    (within 10 degrees and a fifth of the diameter; ``grouping.common.distinct_poses``)."""
+    out = []
+    for mi in sorted({hyps[j].model_index for j in indices}):
+        js = sorted((j for j in indices if hyps[j].model_index == mi), key=lambda j: (-looks[j].score, j))
+        T = np.array([poses[j] for j in js])
+        out += [js[i] for i in distinct_poses(T, np.arange(len(js)), library[mi].diameter, len(js))]
+    return out
 
 
 class _Timer:
@@ -126,23 +169,38 @@ class Detector:
             return [fn(x) for x in items]
         return list(self._pool.map(fn, items))
 
-    def scene(self, frame: Frame, tm: _Timer | None = None) -> Scene:
-        """The frame's ``Scene``: preprocessed cloud, keypoints and their FPFH."""
+    def keypoint_spacing(self, models: list[PreparedModel]) -> float:
+        """m; scene keypoints are described this far apart: ``keypoints.spacing``, or for large models no denser
+        than grouping uses them (the smallest searched diameter / ``grouping.grid_per_diameter``)."""
+        cfg = self.config
+        smallest = min((pm.model.diameter for pm in models), default=0.0)
+        return max(cfg.keypoints.spacing, smallest / cfg.grouping.grid_per_diameter)
+
+    def scene(self, frame: Frame, tm: _Timer | None = None, models: list[PreparedModel] | None = None) -> Scene:
+        """The frame's ``Scene`` for finding ``models`` (default: all): preprocessed cloud (the support's height
+        set by the largest of them), keypoints and their FPFH."""
         cfg, tm = self.config, tm or _Timer()
+        models = self.models if models is None else models
         with tm("preprocess"):
-            cloud = preprocess(frame, cfg.preprocess, cfg.seed)
+            size = max((pm.model.diameter for pm in models), default=0.3)
+            cloud = preprocess(frame, cfg.preprocess, cfg.seed, model_size=size)
         with tm("keypoints"):
-            kp = select_keypoints(cloud.points, cfg.keypoints)
+            kcfg = cfg.keypoints
+            if kcfg.method == "voxel":
+                kcfg = dataclasses.replace(kcfg, spacing=self.keypoint_spacing(models))
+            kp = select_keypoints(cloud.points, kcfg)
         with tm("features"):
             feats = fpfh(cloud.points, cloud.normals, kp, cfg.features)
         return Scene(cloud.points, cloud.normals, cloud.labels, cloud.plane, kp, feats,
                      lrf_radius=cfg.features.lrf_support)
 
-    def _hypotheses(self, scene: Scene, models: list[PreparedModel], tm: _Timer) -> list[Hypothesis]:
+    def _hypotheses(self, scene: Scene, models: list[PreparedModel], tm: _Timer, trace: Trace | None = None
+                    ) -> list[Hypothesis]:
         """Match the scene's keypoints against each model and group the candidates into pose hypotheses, one
         model per thread, each with its own generator (so neither order nor threads change the result)."""
         cfg = self.config
         seeds = np.random.SeedSequence(cfg.seed).spawn(len(self.library))
+        spacing = self.keypoint_spacing(models) if cfg.keypoints.method == "voxel" else cfg.keypoints.spacing
         if self.grouper.needs_lrfs:
             with tm("lrf"):
                 scene.lrfs
@@ -150,11 +208,13 @@ class Detector:
             cands = {pm.index: match_features(scene.descriptors, pm.model.features, cfg.matching,
                                               model_tree=pm.descriptor_tree, workers=self.workers)
                      for pm in models}
+        if trace is not None:
+            trace.candidates = cands
         with tm("grouping"):
             def group(pm: PreparedModel) -> list[Hypothesis]:
                 # large models need no denser grid of scene points than diameter / grid_per_diameter
                 step = max(cfg.keypoints.spacing, pm.model.diameter / cfg.grouping.grid_per_diameter)
-                view = scene.keypoints_at(step, min_step=cfg.keypoints.spacing)
+                view = scene.keypoints_at(step, min_step=spacing)
                 return self.grouper.group(view, pm, cands[pm.index].rows(view.index),
                                           np.random.default_rng(seeds[pm.index]))
 
@@ -167,49 +227,86 @@ class Detector:
         pts = [transform(regs[j].T_target_source, self.library[hyps[j].model_index].points) for j in order]
         ratio = np.array([vers[j].n_violations / max(vers[j].n_supported, 1) for j in order])
         terms = candidate_terms(scene.points, scene.tree, pts, ratio, v.explain_radius, v.clutter_radius)
-        chosen, _ = select(terms, v.duplicate_weight, v.clutter_weight, v.violation_weight)
+        conflicts = same_object_conflicts(terms, [hyps[j].model_index for j in order], v.conflict_overlap)
+        chosen, _ = select(terms, v.duplicate_weight, v.clutter_weight, v.violation_weight, conflicts=conflicts)
         return [order[i] for i in sorted(chosen)]
 
     def _verify(self, frame: Frame, scene: Scene | None, model_index: int, T_cam_model: np.ndarray,
                 stride: int = 1) -> Verification:
         cfg = self.config
         return verify(self.library[model_index], T_cam_model, frame.depth, frame.camera, cfg.verify,
-                      spacing=cfg.preprocess.voxel, plane=None if scene is None else scene.plane, stride=stride)
+                      spacing=cfg.preprocess.voxel, plane=None if scene is None else scene.plane, stride=stride,
+                      caster=self.models[model_index].caster)
+
+    def _coarse_icp(self, pm: PreparedModel, scene: Scene, T_init: np.ndarray) -> np.ndarray:
+        """A raw pose moved by two short rounds of ICP on a sparse sample of the model, with wide
+        correspondence distances (``refine.coarse_distance``, then two thirds of it)."""
+        rc = self.config.refine
+        step = max(1, -(-len(pm.icp_points) // rc.coarse_points))
+        src, nrm = pm.icp_points[::step], pm.icp_normals[::step]
+        T = T_init
+        for d in (rc.coarse_distance, rc.coarse_distance * 2 / 3):
+            T = icp(src, scene.points, scene.normals, T, RefineConfig(iterations=8, max_distance=d, kernel=d / 2),
+                    source_normals=nrm, target_tree=scene.tree, viewpoint=np.zeros(3)).T_target_source
+        return T
 
     def _icp(self, pm: PreparedModel, points, normals, T_init, tree=None) -> RegistrationResult:
         return icp(pm.icp_points, points, normals, T_init, self.config.refine, source_normals=pm.icp_normals,
                    target_tree=tree, viewpoint=np.zeros(3))
 
-    def detect(self, frame: Frame, targets: dict[int, int] | None = None) -> DetectionResult:
+    def detect(self, frame: Frame, targets: dict[int, int] | None = None, *, trace: Trace | None = None
+               ) -> DetectionResult:
         """Detect objects in ``frame``.
 
         targets : optional ``{obj_id: count}`` (BOP localisation): only those objects are searched and the
             ``count`` best-scoring verified instances of each are kept, without the score threshold.
+        trace : a ``Trace`` to fill with the intermediate results (``pcdet.diagnose`` reads it).
         """
         cfg = self.config
         tm = _Timer()
-        scene = self.scene(frame, tm)
-        stats = {"scene_points": len(scene.points), "scene_keypoints": len(scene.keypoints)}
         models = [pm for pm in self.models if targets is None or pm.model.obj_id in targets]
-        hyps = self._hypotheses(scene, models, tm)
+        scene = self.scene(frame, tm, models)
+        stats = {"scene_points": len(scene.points), "scene_keypoints": len(scene.keypoints)}
+        hyps = self._hypotheses(scene, models, tm, trace)
         stats["hypotheses"] = len(hyps)
+        if trace is not None:
+            trace.scene, trace.hypotheses = scene, list(hyps)
         if len(hyps) == 0 or len(scene.points) == 0:
             stats["refined"] = stats["detections"] = 0
             return DetectionResult([], tm.t, stats)
         with tm("verify"):
             # cheap first look at the raw poses: only plausible ones are worth an ICP
             pre = self._map(lambda h: self._verify(frame, scene, h.model_index, h.T_scene_model, stride=2), hyps)
-        # ICP for the best few raw hypotheses of each model only
-        keep = [j for j, v in enumerate(pre) if v.score >= cfg.verify.prefilter and v.n_supported > 0]
-        per_model: dict[int, list[int]] = {}
-        for j in sorted(keep, key=lambda j: (-pre[j].score, j)):
-            per_model.setdefault(hyps[j].model_index, []).append(j)
-        keep = sorted(j for js in per_model.values() for j in js[: cfg.refine.max_per_model])
-        hyps = [hyps[j] for j in keep]
+        # a short coarse ICP for the best raw hypotheses of each model, then the full ICP for the best few
+        rc = cfg.refine
+        plausible = [j for j, v in enumerate(pre) if v.score >= cfg.verify.prefilter and v.n_supported > 0]
+        start = {j: hyps[j].T_scene_model for j in plausible}
+        look = pre
+        if rc.candidates > 0:
+            coarse = _best_per_model(plausible, pre, hyps, rc.candidates)
+            with tm("refine"):
+                moved = self._map(lambda j: self._coarse_icp(self.models[hyps[j].model_index], scene,
+                                                             hyps[j].T_scene_model), coarse)
+            with tm("verify"):
+                second = self._map(lambda jT: self._verify(frame, scene, hyps[jT[0]].model_index, jT[1], stride=2),
+                                   list(zip(coarse, moved)))
+            # the coarse ICP can also slide a good raw pose onto a neighbour: keep whichever looks better
+            look = {j: (v if v.score >= pre[j].score else pre[j]) for j, v in zip(coarse, second)}
+            start = {j: (T if second[n].score >= pre[j].score else hyps[j].T_scene_model)
+                     for n, (j, T) in enumerate(zip(coarse, moved))}
+            plausible = [j for j in coarse if look[j].n_supported > 0]
+            # candidates that converged onto the same pose are one: keep the best-looking of each
+            plausible = _distinct_per_model(plausible, look, hyps, start, self.library)
+            if trace is not None:
+                trace.coarse = coarse
+        keep = sorted(_best_per_model(plausible, look, hyps, rc.max_per_model))
+        if trace is not None:
+            trace.first_look, trace.refined = pre, keep
+        hyps_all, hyps = hyps, [hyps[j] for j in keep]
         stats["refined"] = len(hyps)
         with tm("refine"):
-            regs = self._map(lambda h: self._icp(self.models[h.model_index], scene.points, scene.normals,
-                                                 h.T_scene_model, scene.tree), hyps)
+            regs = self._map(lambda j: self._icp(self.models[hyps_all[j].model_index], scene.points, scene.normals,
+                                                 start[j], scene.tree), keep)
         with tm("verify"):
             vers: list[Verification] = self._map(
                 lambda hr: self._verify(frame, scene, hr[0].model_index, hr[1].T_target_source),
@@ -233,6 +330,8 @@ class Detector:
                         chosen.append(j)
                         left[oid] -= 1
                 kept = chosen
+        if trace is not None:
+            trace.registrations, trace.verifications, trace.accepted, trace.kept = regs, vers, order, kept
         dets = [self._detection(frame, hyps[j].model_index, regs[j], vers[j], hyps[j].n_inliers, hyps[j].group)
                 for j in kept]
         stats["detections"] = len(dets)

@@ -55,10 +55,12 @@ def candidate_terms(scene_points: np.ndarray, scene_tree: cKDTree, model_points:
     return GlobalTerms(explained, clutter, viol)
 
 
-def select(terms: GlobalTerms, w_dup: float, w_clutter: float, w_viol: float, max_steps: int = 200
-           ) -> tuple[list[int], float]:
+def select(terms: GlobalTerms, w_dup: float, w_clutter: float, w_viol: float, max_steps: int = 200, *,
+           conflicts: np.ndarray | None = None) -> tuple[list[int], float]:
     """Maximise f (module docstring) over subsets of the candidates. Returns (chosen indices in the order
-    they were added, f). Ties are broken by the lower index, so the result depends only on the input."""
+    they were added, f). Ties are broken by the lower index, so the result depends only on the input.
+    ``conflicts`` : optional (H, H) bool; two candidates marked there are never chosen together (two poses of
+    one object that claim the same surface)."""
     H = len(terms.explained)
     if H == 0:
         return [], 0.0
@@ -83,6 +85,8 @@ def select(terms: GlobalTerms, w_dup: float, w_clutter: float, w_viol: float, ma
     for _ in range(max_steps):
         best, best_h = cur, -1
         for h in range(H):
+            if not sel[h] and conflicts is not None and (conflicts[h] & sel).any():
+                continue
             sel[h] = ~sel[h]
             v = value(sel)
             sel[h] = ~sel[h]
@@ -97,3 +101,19 @@ def select(terms: GlobalTerms, w_dup: float, w_clutter: float, w_viol: float, ma
         else:
             order.remove(best_h)
     return order, cur
+
+
+def same_object_conflicts(terms: GlobalTerms, groups: list[int], max_overlap: float) -> np.ndarray:
+    """(H, H) bool: candidates of the same group (model) whose explained scene points overlap by more than
+    ``max_overlap`` of the smaller set."""
+    H = len(groups)
+    out = np.zeros((H, H), bool)
+    for a in range(H):
+        for b in range(a + 1, H):
+            if groups[a] != groups[b]:
+                continue
+            ea, eb = terms.explained[a], terms.explained[b]
+            small = min(len(ea), len(eb))
+            if small and len(np.intersect1d(ea, eb, assume_unique=True)) > max_overlap * small:
+                out[a, b] = out[b, a] = True
+    return out

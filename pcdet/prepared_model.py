@@ -9,6 +9,7 @@ from scipy.spatial import cKDTree
 
 from .cloud import voxel_downsample
 from .model import ObjectModel
+from .render import MeshCaster
 
 
 @dataclass
@@ -16,7 +17,7 @@ class PreparedModel:
     """model : the object; index : its position in the library (hypotheses name it);
     icp_points, icp_normals : (P, 3) samples and outward normals (model frame, m) that ICP moves;
     reference : (3,) the model point Hough votes are cast for (m); descriptor_tree : KD-tree over
-    ``model.features``."""
+    ``model.features``; caster : the mesh's ray-casting structure for verification (None for point models)."""
 
     model: ObjectModel
     index: int
@@ -24,10 +25,13 @@ class PreparedModel:
     icp_normals: np.ndarray
     reference: np.ndarray
     descriptor_tree: cKDTree
+    caster: MeshCaster | None = None
 
     @classmethod
     def build(cls, model: ObjectModel, index: int, *, icp_spacing: float) -> "PreparedModel":
         """ICP samples on a grid of ``icp_spacing`` m (far fewer than verification needs; the shape is kept);
         the Hough reference is the centre of the model's bounding box."""
         p, n, _ = voxel_downsample(model.points, icp_spacing, model.normals, representatives=False)
-        return cls(model, index, p, n, (model.points.max(0) + model.points.min(0)) / 2, cKDTree(model.features))
+        caster = MeshCaster(model.vertices, model.faces) if model.is_mesh else None
+        return cls(model, index, p, n, (model.points.max(0) + model.points.min(0)) / 2, cKDTree(model.features),
+                   caster)

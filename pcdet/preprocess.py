@@ -10,6 +10,7 @@ from .cloud import (
     estimate_normals,
     euclidean_clusters,
     segment_plane,
+    support_region,
     voxel_downsample,
 )
 from .errors import ConfigError, InputError
@@ -26,14 +27,22 @@ class PreprocessConfig:
     voxel: float = param(0.004, "m; voxel grid of the scene and of model samples")
     normal_radius: float = param(0.01, "m; neighbourhood for normals (scene, model views)")
     normal_max_nn: int = param(30, "most neighbours used for a normal")
-    remove_plane: bool = param(True, "remove the dominant plane (table, floor) and what lies beyond it")
+    remove_plane: bool = param(True, "remove the supporting plane (table, floor) and what lies beyond it")
     plane_distance: float = param(0.008, "m; points this close to the plane belong to it")
     plane_iterations: int = param(300, "RANSAC draws for the plane")
+    support: bool = param(True, "keep only what stands on the supporting plane: above it, inside its outline, no "
+                                "higher than max_height (objects on a table; false: keep all off the plane)")
+    support_planes: int = param(3, "largest planes tried as the support; the one with most points standing on it "
+                                   "wins (the dominant plane of a room is often a wall or the floor)")
+    max_height: float = param(0.0, "m; tallest object above the support (0: 1.2 x the largest model diameter)")
     cluster_tolerance: float = param(0.012, "m; points closer than this join one Euclidean cluster")
     min_cluster_points: int = param(40, "clusters with fewer points are dropped as clutter")
 
     def __post_init__(self):
-        check_positive(self, "voxel", "normal_radius", "normal_max_nn", "plane_distance", "cluster_tolerance")
+        check_positive(self, "voxel", "normal_radius", "normal_max_nn", "plane_distance", "cluster_tolerance",
+                       "support_planes")
+        if self.max_height < 0:
+            raise ConfigError(f"PreprocessConfig.max_height must be >= 0, got {self.max_height}")
         if not 0 <= self.min_depth < self.max_depth:
             raise ConfigError(f"need 0 <= min_depth < max_depth, got {self.min_depth}, {self.max_depth}")
 
@@ -55,9 +64,11 @@ class SceneCloud:
     n_input: int
 
 
-def preprocess(frame: Frame, cfg: PreprocessConfig, seed: int = 0) -> SceneCloud:
-    """The frame's ``SceneCloud``: points in the depth range on a voxel grid, the dominant plane and what lies
-    beyond it removed, small clusters dropped, normals toward the camera. ``seed`` drives the plane RANSAC."""
+def preprocess(frame: Frame, cfg: PreprocessConfig, seed: int = 0, *, model_size: float = 0.3) -> SceneCloud:
+    """The frame's ``SceneCloud``: points in the depth range on a voxel grid, the supporting plane and what lies
+    beyond it removed (with ``cfg.support``, also everything that does not stand on it), small clusters
+    dropped, normals toward the camera. ``seed`` drives the plane RANSAC; ``model_size`` (m, the largest
+    diameter searched for) sets the height kept above the support when ``cfg.max_height`` is 0."""
     pts, _ = frame.points()
     n_input = len(pts)
     src = frame.info.get("source")
@@ -71,12 +82,36 @@ def preprocess(frame: Frame, cfg: PreprocessConfig, seed: int = 0) -> SceneCloud
     pts, _, _ = voxel_downsample(pts, cfg.voxel, representatives=False)
     plane = None
     if cfg.remove_plane:
-        plane = segment_plane(pts, cfg.plane_distance, cfg.plane_iterations, rng=seed)
+        plane, region = _support(pts, cfg, seed, cfg.max_height or 1.2 * model_size)
         if plane is not None:
             # drop the plane and whatever lies beyond it (under the table, seen through gaps)
-            keep = pts @ plane.normal + plane.offset > cfg.plane_distance
+            keep = region if region is not None else pts @ plane.normal + plane.offset > cfg.plane_distance
             pts = pts[keep]
     labels = euclidean_clusters(pts, cfg.cluster_tolerance, cfg.min_cluster_points)
     pts, labels = pts[labels >= 0], labels[labels >= 0]
     normals = estimate_normals(pts, cfg.normal_radius, cfg.normal_max_nn) if len(pts) >= 3 else np.zeros((0, 3))
     return SceneCloud(pts, normals, labels, plane, n_input)
+
+
+def _support(pts: np.ndarray, cfg: PreprocessConfig, seed: int, max_height: float
+             ) -> tuple[Plane | None, np.ndarray | None]:
+    """The supporting plane and, with ``cfg.support``, the mask of the points standing on it. Without support
+    the plane is the dominant one (seeded by ``seed``); with it, of the ``support_planes`` largest planes
+    (each found among the points the earlier ones left), the one with most points standing on it."""
+    first = segment_plane(pts, cfg.plane_distance, cfg.plane_iterations, rng=seed)
+    if first is None or not cfg.support:
+        return first, None
+    best, best_region, rest, plane = None, None, np.arange(len(pts)), first
+    for k in range(cfg.support_planes):
+        if k:
+            found = segment_plane(pts[rest], cfg.plane_distance, cfg.plane_iterations, rng=seed + k)
+            if found is None:
+                break
+            plane = Plane(found.normal, found.offset, rest[found.inliers])
+        region = support_region(pts, plane, max_height, cfg.plane_distance)
+        if best is None or region.sum() > best_region.sum():
+            best, best_region = plane, region
+        rest = np.setdiff1d(rest, plane.inliers, assume_unique=True)
+        if len(rest) < 100:
+            break
+    return best, best_region

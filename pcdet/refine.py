@@ -8,6 +8,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from .align import transform
+from .errors import ConfigError
 from .params import check_positive, param
 
 
@@ -18,10 +19,18 @@ class RefineConfig:
     iterations: int = param(30, "ICP iterations at most")
     max_distance: float = param(0.012, "m; ICP correspondence distance")
     kernel: float = param(0.006, "m; Tukey kernel width of the point-to-plane residual")
-    max_per_model: int = param(3, "raw hypotheses per model refined by ICP (best first look first)")
+    max_per_model: int = param(3, "hypotheses per model refined fully by ICP (best after the coarse look first)")
+    candidates: int = param(12, "raw hypotheses per model (best first look first) given a short coarse ICP, "
+                                "after which the best max_per_model are refined fully (0: no coarse stage)")
+    coarse_distance: float = param(0.03, "m; correspondence distance of the coarse ICP (then two thirds of it): "
+                                         "raw poses 1-3 cm off come within the full ICP's reach")
+    coarse_points: int = param(300, "model samples the coarse ICP moves (evenly taken from the ICP samples)")
 
     def __post_init__(self):
-        check_positive(self, "iterations", "max_distance", "kernel", "max_per_model")
+        check_positive(self, "iterations", "max_distance", "kernel", "max_per_model", "coarse_distance",
+                       "coarse_points")
+        if self.candidates < 0:
+            raise ConfigError(f"RefineConfig.candidates must be >= 0, got {self.candidates}")
 
 
 @dataclass

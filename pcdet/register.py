@@ -28,7 +28,6 @@ from .prepared_model import PreparedModel
 from .refine import RegistrationResult, icp
 from .scene import SceneKeypoints
 
-
 # A model on one of its partial scans explains all of the scan (coverage >= 0.97 on the bunny) but half of the
 # model (fitness 0.51-0.54); two scans explain each other (0.92 / 0.97); a box on a ball, or the bunny on a
 # ball, reach at most 0.32. Below this on both sides a registration is reported as doubtful.

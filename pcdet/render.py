@@ -83,6 +83,44 @@ def mesh_depth_at(camera: Camera, vertices: np.ndarray, faces: np.ndarray, T_cam
     return np.where(np.isfinite(t), t, 0).astype(np.float32)
 
 
+class MeshCaster:
+    """A mesh's ray-casting structure, built once in the mesh's own frame; ``depth_at`` moves the camera's rays
+    into that frame instead of moving (and re-indexing) the mesh for every pose. Same depths as
+    ``mesh_depth_at``."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+        from ._o3d import o3d
+
+        self._scene = o3d.t.geometry.RaycastingScene()
+        self._scene.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)),
+                                  o3d.core.Tensor(np.asarray(faces, dtype=np.uint32)))
+
+    def _cast(self, camera: Camera, T_cam_mesh: np.ndarray, pixels: np.ndarray) -> dict:
+        from ._o3d import o3d
+
+        rays = camera_rays(camera, pixels).astype(np.float64)
+        R, t = T_cam_mesh[:3, :3], T_cam_mesh[:3, 3]
+        rays[:, :3] = -R.T @ t  # the camera centre in the mesh frame
+        rays[:, 3:] = rays[:, 3:] @ R  # directions rotated into the mesh frame (lengths kept: t_hit is z)
+        return self._scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))
+
+    def depth_at(self, camera: Camera, T_cam_mesh: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+        """(N,) float32 depth (m, 0 where the ray misses) of the mesh at ``T_cam_mesh`` at flat ``pixels``."""
+        hit = self._cast(camera, T_cam_mesh, pixels)["t_hit"].numpy()
+        return np.where(np.isfinite(hit), hit, 0).astype(np.float32)
+
+    def cast(self, camera: Camera, T_cam_mesh: np.ndarray, pixels: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """At flat ``pixels`` (N,): depth (N,) float32 m (0 where the ray misses), the hit triangle's unit normal
+        in the camera frame (N, 3) and its index (N,) int64 (-1 where the ray misses)."""
+        ans = self._cast(camera, T_cam_mesh, pixels)
+        hit = ans["t_hit"].numpy()
+        ok = np.isfinite(hit)
+        normals = ans["primitive_normals"].numpy().astype(np.float64) @ T_cam_mesh[:3, :3].T
+        ids = np.where(ok, ans["primitive_ids"].numpy().astype(np.int64), -1)
+        return np.where(ok, hit, 0).astype(np.float32), normals, ids
+
+
 def render_points(camera: Camera, points_cam: np.ndarray, spacing: float) -> np.ndarray:
     """Z-buffer (N, 3) camera-frame points into an (H, W) float32 depth image (0 where empty), each point
     splatted over a square of about ``spacing`` metres so that sampled surfaces render without holes."""

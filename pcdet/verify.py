@@ -22,7 +22,7 @@ from .cloud import Plane
 from .errors import ConfigError
 from .model import ObjectModel
 from .params import check_positive, check_range, param
-from .render import mesh_depth_at, render_meshes, render_points
+from .render import MeshCaster, mesh_depth_at, render_meshes, render_points
 
 
 @dataclass(frozen=True)
@@ -114,7 +114,8 @@ def render_model(model: ObjectModel, T_cam_model: np.ndarray, camera: Camera, *,
 
 
 def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camera: Camera, cfg: VerifyConfig, *,
-           spacing: float = 0.004, plane: Plane | None = None, stride: int = 1) -> Verification:
+           spacing: float = 0.004, plane: Plane | None = None, stride: int = 1,
+           caster: MeshCaster | None = None) -> Verification:
     """Compare ``model`` rendered at ``T_cam_model`` with measured ``depth`` (H, W) float32 metres; with the
     scene's supporting ``plane``, also measure how much of the model would sink into it. ``stride`` > 1 looks
     at every stride-th row and column only (a quick first look; pixel counts shrink by stride^2)."""
@@ -124,7 +125,12 @@ def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camer
         box = bbox_pixels(camera, P, stride)
         if box is None:
             box = np.zeros(0, np.int64)
-        rv = mesh_depth_at(camera, model.vertices, model.faces, T_cam_model, box) if len(box) else np.zeros(0)
+        if not len(box):
+            rv = np.zeros(0)
+        elif caster is not None:
+            rv = caster.depth_at(camera, T_cam_model, box)
+        else:
+            rv = mesh_depth_at(camera, model.vertices, model.faces, T_cam_model, box)
         hit = rv > 0
         pix, rv = box[hit], rv[hit]
     else:

@@ -17,7 +17,8 @@ LAYERS = [
     ("stages", ["preprocess", "keypoints", "features", "matching", "grouping", "refine", "verify",
                 "global_verify", "odometry", "scene", "model_views", "model", "prepared_model", "image"]),
     ("configuration and library", ["config", "model_cache", "library"]),
-    ("composers", ["detector", "register", "tracking", "runner", "executors", "evaluate", "synth", "viz"]),
+    ("composers", ["detector", "register", "tracking", "runner", "executors", "evaluate", "synth", "viz",
+                   "diagnose"]),
     ("command line", ["cli", "console", "image.cli", "__init__"]),
 ]
 

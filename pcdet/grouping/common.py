@@ -31,19 +31,20 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
     mp = np.ascontiguousarray(model_pts, dtype=np.float32)
     mn = np.ascontiguousarray(model_nrm, dtype=np.float32)
     tol = np.float32(np.radians(normal_tolerance_deg))
+    # the candidates' model points at both ends of every pair, gathered once: (P, k, 3)
+    ca_all, cb_all = cand[a], cand[b]
+    pa, pb = mp[np.maximum(ca_all, 0)], mp[np.maximum(cb_all, 0)]
+    lo2 = np.maximum(fs[:, 0] - edge_tolerance, 0) ** 2  # squared bounds: no square root per candidate pair
+    hi2 = (fs[:, 0] + edge_tolerance) ** 2
     ca_parts, cb_parts = [], []
-    # one pass per (r1, r2) candidate pair: small temporaries, and the cheap length test first
+    # one pass per (r1, r2) candidate pair: the cheap length test first, angles only for what passes it
     for r1 in range(k):
-        ma_all = cand[a, r1]
         for r2 in range(k):
-            mb_all = cand[b, r2]
-            ok = (ma_all >= 0) & (mb_all >= 0) & (ma_all != mb_all)
-            sel = np.flatnonzero(ok)
-            ma, mb = ma_all[sel], mb_all[sel]
-            dv = mp[mb] - mp[ma]
-            lm = np.sqrt(np.einsum("ij,ij->i", dv, dv))
-            keep = np.abs(fs[sel, 0] - lm) < edge_tolerance
-            sel, ma, mb = sel[keep], ma[keep], mb[keep]
+            dv = pb[:, r2] - pa[:, r1]
+            l2 = np.einsum("ij,ij->i", dv, dv)
+            ma, mb = ca_all[:, r1], cb_all[:, r2]
+            sel = np.flatnonzero((l2 > lo2) & (l2 < hi2) & (ma >= 0) & (mb >= 0) & (ma != mb))
+            ma, mb = ma[sel], mb[sel]
             fm = pair_features(mp[ma], mn[ma], mp[mb], mn[mb])
             d = np.abs(fs[sel, 1:] - fm[:, 1:])
             keep = (d[:, 0] < tol) & (d[:, 1] < tol) & (d[:, 2] < tol)

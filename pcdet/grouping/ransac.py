@@ -43,14 +43,17 @@ class RansacConfig:
     edge_tolerance: float = param(0.006, "m; pair-length difference allowed between scene and model pairs")
     normal_tolerance_deg: float = param(20.0, "degrees; pair-angle difference allowed (point-pair features)")
     max_instances: int = param(2, "instances of one model searched per cluster")
-    alternatives: int = param(2, "extra distinct poses kept per round for verification to choose from")
+    alternatives: int = param(4, "extra distinct poses kept per round for verification to choose from")
     rescore: int = param(20, "best triplet poses refit and re-ranked by geometric overlap with the scene "
                              "(0: off)")
     min_normal_spread_deg: float = param(15.0, "a triplet needs a normal this far from the others (0: off)")
+    guided: float = param(2.0, "seed edges are drawn with weight (1 + common compatible neighbours)^guided "
+                               "(second-order compatibility: correct matches agree with each other); 0: seeds "
+                               "uniform, as in plain RANSAC")
 
     def __post_init__(self):
         check_positive(self, "iterations", "edge_tolerance", "normal_tolerance_deg", "max_instances")
-        for n in ("alternatives", "rescore", "min_normal_spread_deg"):
+        for n in ("alternatives", "rescore", "min_normal_spread_deg", "guided"):
             if getattr(self, n) < 0:
                 raise ConfigError(f"RansacConfig.{n} must be >= 0, got {getattr(self, n)}")
 
@@ -88,7 +91,8 @@ class RansacGrouper:
         if scene.cloud_tree is not None and c.rescore > 0:
             overlap = Overlap(model.icp_points, model.icp_normals, scene.cloud_tree,
                               0.75 * self.common.inlier_distance)
-        graph = _Graph(cs, cm, cn, k, start, deg, nbr)
+        graph = _Graph(cs, cm, cn, k, start, deg, nbr, *(_second_order(start, deg, nbr) if c.guided > 0
+                                                          else (None, None)))
         active = (cand.reshape(-1) >= 0) & (deg >= 2)
         labels = np.asarray(scene.labels)
         clabel = np.repeat(labels, k)
@@ -119,11 +123,16 @@ class RansacGrouper:
         pool = np.flatnonzero(active)
         if len(pool) < 3:
             return []
-        i0 = pool[rng.integers(0, len(pool), c.iterations)]
-        d0 = deg[i0]
-        j = nbr[start[i0] + (rng.random(len(i0)) * d0).astype(np.int64)]
-        kk = nbr[start[i0] + (rng.random(len(i0)) * d0).astype(np.int64)]
-        ok = active[j] & active[kk] & (j != kk) & (j // k != kk // k)
+        if g.common is None:  # plain RANSAC: uniform seeds, two partners each
+            i0 = pool[rng.integers(0, len(pool), c.iterations)]
+            d0 = deg[i0]
+            j = nbr[start[i0] + (rng.random(len(i0)) * d0).astype(np.int64)]
+            kk = nbr[start[i0] + (rng.random(len(i0)) * d0).astype(np.int64)]
+            ok = active[j] & active[kk] & (j != kk) & (j // k != kk // k)
+        else:
+            i0, j, kk, ok = self._guided_triangles(g, active, rng)
+            if i0 is None:
+                return []
         tri = np.stack([i0, j, kk], axis=1)[ok]
         if len(tri) == 0:
             return []
@@ -170,6 +179,30 @@ class RansacGrouper:
         return [(Tr[i], pool[inls[i]]) for i in keep]
 
 
+    def _guided_triangles(self, g: "_Graph", active: np.ndarray, rng: np.random.Generator):
+        """``iterations`` seed edges among active correspondences, drawn with weight (1 + common compatible
+        neighbours)^guided, each completed by a third correspondence compatible with both ends (the first of 4
+        draws among the seed's partners that is). Returns (i0, j, kk, ok) like the plain draw."""
+        start, deg, nbr, k = g.start, g.deg, g.nbr, g.k
+        src = g.src
+        live = np.flatnonzero(active[src] & active[nbr] & (src < nbr))
+        if len(live) == 0:
+            return None, None, None, None
+        w = (1.0 + g.common[live]) ** self.cfg.guided
+        e = live[rng.choice(len(live), size=self.cfg.iterations, p=w / w.sum())]
+        i0, j = src[e], nbr[e]
+        kk = np.full(len(e), -1, np.int64)
+        M = len(g.cs)
+        for _ in range(4):
+            cand = nbr[start[i0] + (rng.random(len(i0)) * deg[i0]).astype(np.int64)]
+            key = j * M + cand
+            pos = np.minimum(np.searchsorted(g.keys, key), len(g.keys) - 1)
+            hit = (g.keys[pos] == key) & (kk < 0) & (cand != j)
+            kk[hit] = cand[hit]
+        ok = (kk >= 0) & active[np.maximum(kk, 0)] & (j // k != kk // k) & (i0 // k != kk // k)
+        return i0, j, np.maximum(kk, 0), ok
+
+
 @dataclass
 class _Graph:
     """The correspondences of one grouping call: scene points, model points and scene normals of each (M, 3),
@@ -182,6 +215,25 @@ class _Graph:
     start: np.ndarray
     deg: np.ndarray
     nbr: np.ndarray
+    common: np.ndarray | None = None  # per edge (aligned with nbr): common compatible neighbours of its ends
+    keys: np.ndarray | None = None  # sorted src * M + dst of every edge, for adjacency tests
+
+    @property
+    def src(self) -> np.ndarray:
+        return np.repeat(np.arange(len(self.deg)), self.deg)
+
+
+def _second_order(start: np.ndarray, deg: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per edge of the CSR compatibility graph, the number of correspondences compatible with both its ends
+    (SC^2, Chen et al. 2022), and the sorted edge keys src * M + dst."""
+    import scipy.sparse as sparse
+
+    M = len(deg)
+    src = np.repeat(np.arange(M), deg)
+    A = sparse.csr_matrix((np.ones(len(nbr), np.float32), (src, nbr)), shape=(M, M))
+    AA = (A @ A).tocsr()
+    common = np.asarray(AA[src, nbr]).reshape(-1) if len(nbr) else np.zeros(0)
+    return common.astype(np.float64), src * M + nbr
 
 
 @dataclass
@@ -203,3 +255,4 @@ class Overlap:
         front = ((self.normals @ T[:3, :3].T) * P).sum(axis=1) < 0
         d, _ = self.scene_tree.query(P[front], distance_upper_bound=self.distance)
         return int(np.isfinite(d).sum())
+

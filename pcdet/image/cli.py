@@ -13,6 +13,7 @@ from ..errors import InputError
 from ..io.jsonfile import read_json
 from ..io.outputs import check_file
 
+
 def _need(doc: dict, keys: tuple[str, ...], path, what: str) -> None:
     """``InputError`` naming the file and the missing fields unless ``doc`` has every key."""
     missing = [k for k in keys if k not in doc]
