@@ -124,7 +124,7 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
                                          "layout, depth/ + camera.json, or a folder of clouds."),
         models: Optional[Path] = typer.Option(None, help="Model folder (default: the dataset's models/)."),
         out: Path = typer.Option(..., help="Output folder: results.csv, frames/*.json, config.toml."),
-        format: str = typer.Option("auto", help="Reader: auto, bop, tum, redwood, folder, clouds."),
+        format: str = typer.Option("auto", help="Reader: auto, bop, tum, redwood, 7scenes, folder, clouds."),
         targets: Optional[str] = typer.Option(None, help="'gt': localise the objects listed in scene_gt.json."),
         pipeline: Optional[str] = typer.Option(None, help="Preset name or TOML file."),
         grouping: Optional[str] = typer.Option(None, help="Grouping method: ransac, gc or hough."),

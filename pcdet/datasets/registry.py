@@ -8,14 +8,16 @@ from .bop import BopDataset
 from .clouds import CloudFolder
 from .folder import FolderRecording
 from .redwood import RedwoodRecording
+from .sevenscenes import SevenScenesRecording
 from .tum import TumRecording
 
 # most specific first: a Redwood folder would also pass as a plain folder if it had camera.json
-READERS = {"bop": BopDataset, "tum": TumRecording, "redwood": RedwoodRecording, "folder": FolderRecording,
-           "clouds": CloudFolder}
+READERS = {"bop": BopDataset, "tum": TumRecording, "redwood": RedwoodRecording, "7scenes": SevenScenesRecording,
+           "folder": FolderRecording, "clouds": CloudFolder}
 
 FORMAT_HELP = ("bop (split/scene/scene_camera.json), tum (rgb.txt + depth.txt), redwood (depth/ + color/ + "
-               "Open3D camera JSON or .log poses), folder (depth/*.png + camera.json), clouds (*.ply/*.pcd/*.xyz)")
+               "Open3D camera JSON or .log poses), 7scenes (frame-XXXXXX.depth.png + .pose.txt), folder (depth/*.png + "
+               "camera.json), clouds (*.ply/*.pcd/*.xyz)")
 
 
 def detect_format(path) -> str:

@@ -1,0 +1,97 @@
+"""The 7-Scenes / 3DMatch RGB-D layout (Shotton et al. 2013; Zeng et al. 2017): one sequence per folder,
+``frame-XXXXXX.depth.png`` (uint16 millimetres; 0 or 65535 = no reading), ``frame-XXXXXX.color.jpg`` and
+``frame-XXXXXX.pose.txt`` (4x4 camera-to-world, metres), with the intrinsics in ``camera-intrinsics.txt`` (a 3x3
+K) in the folder or its parent; 7-Scenes ships none, so without that file the Kinect default it documents is used
+(fx = fy = 585, cx = 320, cy = 240). The image size comes from the first depth PNG.
+
+7-Scenes' colour images are not registered to its depth images (the dataset says so); they are loaded as they
+are, and nothing in pcdet's odometry uses them.
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import InputError
+from ..frame import Frame
+from ..io.depth import image_size
+from .base import FrameRef, SequenceBase
+
+FRAME = re.compile(r"^frame-(\d+)\.depth\.png$")
+KINECT_K = (585.0, 585.0, 320.0, 240.0)
+NO_READING_M = 65.535  # 65535 mm: 7-Scenes' mark for a pixel without depth
+
+
+def read_matrix(path: Path, shape: tuple[int, int]) -> np.ndarray:
+    """A whitespace-separated matrix of ``shape`` from a text file (``InputError`` naming the file otherwise)."""
+    try:
+        M = np.array([[float(x) for x in line.split()] for line in path.read_text().splitlines() if line.strip()])
+    except ValueError as e:
+        raise InputError(f"not a matrix of numbers: {e}", path) from None
+    if M.shape != shape:
+        raise InputError(f"expected a {shape[0]}x{shape[1]} matrix, found {'x'.join(map(str, M.shape))}", path)
+    if not np.all(np.isfinite(M)):
+        raise InputError("matrix holds NaN or infinity", path)
+    return M
+
+
+class SevenScenesRecording(SequenceBase):
+    """A 7-Scenes / 3DMatch ``seq-XX`` folder as a recording (scene 1, frames in file-number order)."""
+
+    format = "7scenes"
+
+    def __init__(self, root):
+        super().__init__(root)
+        found = sorted((int(m.group(1)), p.name) for p in self.root.iterdir() if (m := FRAME.match(p.name)))
+        if not found:
+            raise InputError("no frame-XXXXXX.depth.png: not a 7-Scenes recording", self.root)
+        self._numbers = [n for n, _ in found]
+        self.images = [FrameRef(1, i) for i in range(len(found))]
+        K = None
+        for folder in (self.root, self.root.parent):
+            p = folder / "camera-intrinsics.txt"
+            if p.is_file():
+                K = read_matrix(p, (3, 3))
+                break
+        fx, fy, cx, cy = KINECT_K if K is None else (float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
+        w, h = image_size(self._path(0, "depth.png"))
+        self.camera = Camera(fx, fy, cx, cy, w, h, 1.0)
+
+    def _path(self, i: int, kind: str) -> Path:
+        return self.root / f"frame-{self._numbers[i]:06d}.{kind}"
+
+    @classmethod
+    def detect(cls, path: Path) -> bool:
+        """Whether ``path`` holds ``frame-000000.depth.png`` (or any frame-N.depth.png) and a pose file."""
+        if (path / "frame-000000.depth.png").is_file():
+            return True
+        return any(FRAME.match(p.name) for p in path.glob("frame-*.depth.png")) and \
+            any(path.glob("frame-*.pose.txt"))
+
+    def source(self, ref: FrameRef) -> str:
+        """The depth PNG of a frame."""
+        return str(self._path(ref.im_id, "depth.png"))
+
+    def frame(self, ref: FrameRef) -> Frame:
+        """The frame (depth in metres, 65535 read as no depth; colour when its size matches)."""
+        rgb = self._path(ref.im_id, "color.jpg")
+        if rgb.is_file():
+            w, h = image_size(rgb)
+            rgb = rgb if (w, h) == (self.camera.width, self.camera.height) else None
+        else:
+            rgb = None
+        f = Frame.from_depth_png(self.source(ref), self.camera, rgb_path=rgb,
+                                 info={"scene_id": ref.scene_id, "im_id": ref.im_id,
+                                       "frame": self._numbers[ref.im_id]})
+        f.depth[f.depth >= NO_READING_M - 1e-3] = 0
+        return f
+
+    def camera_poses(self):
+        """Ground-truth ``T_world_cam`` per frame from the ``.pose.txt`` files, or None when any is missing."""
+        paths = [self._path(i, "pose.txt") for i in range(len(self.images))]
+        if not all(p.is_file() for p in paths):
+            return None
+        return {ref: read_matrix(p, (4, 4)) for ref, p in zip(self.images, paths)}
