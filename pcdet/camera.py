@@ -98,6 +98,10 @@ class Camera:
                 K = _matrix(data["cam_K"])
                 scale = float(data.get("depth_scale", 1.0))
             elif "fx" in data:  # depth_scale as in BOP: raw * depth_scale = millimetres
+                missing = [k for k in ("fx", "fy", "cx", "cy") if k not in data]
+                if missing:
+                    raise InputError(f"camera JSON lacks {', '.join(missing)} (pcdet's layout has fx, fy, cx, cy, "
+                                     "width, height[, depth_scale])", path)
                 K = np.array([[float(data["fx"]), 0, float(data["cx"])], [0, float(data["fy"]), float(data["cy"])],
                               [0, 0, 1]])
                 scale = float(data.get("depth_scale", 1.0))

@@ -22,6 +22,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .cloud import estimate_normals, voxel_downsample
+from .errors import ConfigError
 from .frame import Frame
 from .refine import RefineConfig, icp
 
@@ -46,7 +47,7 @@ class OdometryConfig:
 
     def __post_init__(self):
         if self.method not in ("kiss", "icp", "kiss+icp"):
-            raise ValueError(f"OdometryConfig.method must be 'kiss', 'icp' or 'kiss+icp', got {self.method!r}")
+            raise ConfigError(f"OdometryConfig.method must be 'kiss', 'icp' or 'kiss+icp', got {self.method!r}")
 
 
 def _kiss(cfg: OdometryConfig):

@@ -18,7 +18,7 @@ from scipy.ndimage import maximum_filter, minimum_filter
 
 from .align import transform
 from .camera import Camera
-from .errors import InputError
+from .errors import ConfigError, InputError
 from .io.atomic import atomic_write_text
 from .io.bop import camera_pose_to_bop, camera_to_bop, pose_to_bop
 from .io.depth import write_depth_png, write_png
@@ -52,10 +52,9 @@ class SynthConfig:
     sweep_deg: float = 90.0
 
     def __post_init__(self):
-        if self.scenes < 1 or self.objects < 1 or self.instances < 1:
-            raise ValueError("scenes, objects and instances must be >= 1")
-        if self.distractors < 0 or self.sequence < 0:
-            raise ValueError("distractors and sequence must be >= 0")
+        for name, low in (("scenes", 1), ("objects", 1), ("instances", 1), ("distractors", 0), ("sequence", 0)):
+            if getattr(self, name) < low:
+                raise ConfigError(f"synth {name} must be >= {low}, got {getattr(self, name)}")
 
 
 def kinect_sigma(z: np.ndarray) -> np.ndarray:

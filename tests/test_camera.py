@@ -34,7 +34,8 @@ def test_bop_scene_camera_and_open3d_layouts():
 
 @pytest.mark.parametrize("content, words", [
     ("{not json", "not valid JSON"),
-    ('{"fx": 500, "fy": 500}', "malformed field"),
+    ('{"fx": 500, "fy": 500}', "lacks cx, cy"),
+    ('{"fx": "a", "fy": 500, "cx": 1, "cy": 1, "width": 640, "height": 480}', "malformed field"),
     ('{"fx": -1, "fy": 500, "cx": 1, "cy": 1, "width": 640, "height": 480}', "fx must be a positive"),
     ('{"focal": 3}', "none of the known layouts"),
     ("[1, 2]", "JSON object"),

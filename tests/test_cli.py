@@ -74,6 +74,15 @@ def test_bad_inputs_one_clear_line(scene):
     (scene / "broken.json").write_text("{fx: 1")
     assert "broken.json: camera file is not valid JSON" in _error_line(
         _cli(*base, "--depth", scene / "depth.png", "--camera", scene / "broken.json"))
+    (scene / "partial.json").write_text('{"fx": 500, "fy": 500, "width": 640, "height": 480}')
+    assert "partial.json: camera JSON lacks cx, cy" in _error_line(
+        _cli(*base, "--depth", scene / "depth.png", "--camera", scene / "partial.json"))
+    (scene / "bad.ply").write_text("not a mesh")
+    assert "bad.ply: not a PLY file" in _error_line(_cli("detect", "--models", scene / "bad.ply", "--depth",
+                                                         scene / "depth.png", "--camera", scene / "cam.json",
+                                                         "--out", scene / "x.json"))
+    assert "synth scenes must be >= 1, got 0" in _error_line(_cli("synth", "--models", MODELS, "--out",
+                                                                  scene / "syn", "--scenes", "0"))
     np.savetxt(scene / "nan.xyz", np.full((5, 3), np.nan))
     assert "nan.xyz: point cloud holds no finite point" in _error_line(_cli(*base, "--cloud", scene / "nan.xyz"))
 

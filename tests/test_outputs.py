@@ -48,18 +48,18 @@ def test_output_paths_of_the_wrong_kind_or_place_are_refused_first(scene, synth_
     path, before any model is loaded or any frame detected (nothing is written)."""
     base = ["detect", "--models", MODELS, "--depth", scene / "depth.png", "--camera", scene / "cam.json"]
     (scene / "adir").mkdir()
-    assert f"{scene / 'adir'}: is a folder, but the detections JSON is a file" in _error(_cli(*base, "--out",
+    assert f"{scene / 'adir'}: is a folder, but the detections JSON must be a file" in _error(_cli(*base, "--out",
                                                                                                scene / "adir"))
     (scene / "afile").write_text("x")
     msg = _error(_cli(*base, "--out", scene / "afile" / "det.json"))
     assert "det.json: cannot be written" in msg and "afile is a file" in msg
     # the overlay is checked before the detections JSON is written
     res = _cli(*base, "--out", scene / "ok.json", "--overlay", scene / "adir")
-    assert "overlay PNG is a file" in _error(res) and not (scene / "ok.json").exists()
-    assert f"{scene / 'afile'}: is a file, but the output folder is a folder" in _error(
+    assert "overlay PNG must be a file" in _error(res) and not (scene / "ok.json").exists()
+    assert f"{scene / 'afile'}: is a file, but the output folder must be a folder" in _error(
         _cli("run", synth_small, "--out", scene / "afile"))
-    assert "dataset folder is a folder" in _error(_cli("synth", "--out", scene / "afile", "--scenes", "1"))
-    assert "registration JSON is a file" in _error(_cli("register", MODELS / "obj_000001.ply",
+    assert "dataset folder must be a folder" in _error(_cli("synth", "--out", scene / "afile", "--scenes", "1"))
+    assert "registration JSON must be a file" in _error(_cli("register", MODELS / "obj_000001.ply",
                                                         MODELS / "obj_000002.ply", "--out", scene / "adir"))
 
 

@@ -45,6 +45,42 @@ def _pcd_shape(path: Path) -> tuple[int, int] | None:
     return None
 
 
+def _open3d_reads_ply(path: Path) -> bool:
+    """Whether the PLY header is one open3d's reader takes (no obj_info lines, only vertex and face elements);
+    ``InputError`` when the file is not PLY at all."""
+    with open(path, "rb") as f:
+        head = f.read(65536)
+    if not head.startswith(b"ply"):
+        raise InputError("not a PLY file (it does not start with 'ply')", path)
+    lines = head.split(b"end_header")[0].splitlines()
+    elements = {ln.split()[1] for ln in lines if ln.startswith(b"element ") and len(ln.split()) > 1}
+    return not any(ln.startswith(b"obj_info") for ln in lines) and elements <= {b"vertex", b"face"}
+
+
+def _ply_with_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(points (N, 3), normals (N, 3) or None, colours (N, 3) in [0, 1] or None) of a PLY's vertex element, read
+    with trimesh (the vertices of a mesh, whatever other elements the file has)."""
+    import trimesh
+
+    try:
+        geom = trimesh.load(str(path), process=False)
+    except Exception as e:  # trimesh raises many types for unreadable files; report it as the file's problem
+        raise InputError(f"cannot parse PLY ({type(e).__name__}: {e})", path) from None
+    pts = np.asarray(getattr(geom, "vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
+    raw = getattr(geom, "metadata", {}).get("_ply_raw", {}).get("vertex", {}).get("data")
+    names = (raw.dtype.names or ()) if isinstance(raw, np.ndarray) else tuple(raw or ())
+    nrm = None
+    if all(k in names for k in ("nx", "ny", "nz")):
+        nrm = np.stack([np.asarray(raw[k], np.float64).reshape(-1) for k in ("nx", "ny", "nz")], axis=1)
+    cols = getattr(getattr(geom, "visual", None), "vertex_colors", None)
+    if cols is None:
+        cols = getattr(geom, "colors", None)
+    col = None
+    if cols is not None and len(cols) == len(pts) and len(pts):
+        col = np.asarray(cols, np.float64)[:, :3] / 255.0
+    return pts, nrm, col
+
+
 def read_cloud(path, keep_invalid: bool = False) -> CloudData:
     """Read a point cloud file.
 
@@ -75,12 +111,17 @@ def read_cloud(path, keep_invalid: bool = False) -> CloudData:
         nrm = a[:, 3:6] if a.shape[1] >= 6 else None
         col = None
     else:
-        pc = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
-        pts = np.asarray(pc.points, dtype=np.float64)
+        if suffix == ".ply" and not _open3d_reads_ply(path):
+            # open3d's reader refuses valid PLY headers it does not know (Cyberware range scans carry obj_info
+            # lines and a range_grid element); trimesh reads any PLY
+            pts, nrm, col = _ply_with_trimesh(path)
+        else:
+            pc = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
+            pts = np.asarray(pc.points, dtype=np.float64)
+            nrm = np.asarray(pc.normals, dtype=np.float64) if pc.has_normals() else None
+            col = np.asarray(pc.colors, dtype=np.float64) if pc.has_colors() else None
         if len(pts) == 0:
             raise InputError("point cloud is empty or could not be parsed", path)
-        nrm = np.asarray(pc.normals, dtype=np.float64) if pc.has_normals() else None
-        col = np.asarray(pc.colors, dtype=np.float64) if pc.has_colors() else None
         if suffix == ".pcd":
             shape = _pcd_shape(path)
             if shape and shape[0] * shape[1] != len(pts):

@@ -45,6 +45,10 @@ def _read_geometry(path: Path):
     if suffix in CLOUD_ONLY_SUFFIXES:
         cd = read_cloud(path)
         return cd.points, None, cd.normals
+    if suffix == ".ply":
+        with open(path, "rb") as f:
+            if f.read(3) != b"ply":
+                raise InputError("not a PLY file (it does not start with 'ply')", path)
     try:
         geom = trimesh.load(str(path), process=False)
     except Exception as e:  # trimesh raises many types for unreadable files; report it as the file's problem

@@ -36,7 +36,7 @@ def check_file(path, what: str = "output") -> Path:
     """An output file's path, checked: not an existing folder, its folder writable (created if missing)."""
     path = Path(path)
     if path.is_dir():
-        raise InputError(f"is a folder, but the {what} is a file: give a file name", path)
+        raise InputError(f"is a folder, but the {what} must be a file: give a file name", path)
     _probe(path.parent if str(path.parent) else Path("."), path)
     return path
 
@@ -45,7 +45,7 @@ def check_folder(path, what: str = "output") -> Path:
     """An output folder, checked: not an existing file, and writable (created if missing)."""
     path = Path(path)
     if path.exists() and not path.is_dir():
-        raise InputError(f"is a file, but the {what} is a folder: give a folder name", path)
+        raise InputError(f"is a file, but the {what} must be a folder: give a folder name", path)
     _probe(path, path)
     return path
 
