@@ -235,6 +235,51 @@ def _run_tracking(rec, lib, cfg, out: Path, redetect_every: int, workers: int, e
                   f"{sum(len(r.tracks) for r in res.values())} track(s){fps} -> {out / 'tracks.json'}")
 
 
+@app.command()
+@guard
+def odometry(recording: Path = typer.Argument(..., help="Recording folder: BOP, TUM RGB-D, Redwood, 7-Scenes, "
+                                              "depth/ + camera.json."),
+             out: Path = typer.Option(..., help="Output folder: trajectory.txt (TUM format) and odometry.toml."),
+             format: str = typer.Option("auto", help="Reader: auto, bop, tum, redwood, 7scenes, folder."),
+             method: str = typer.Option("kiss+icp", help="kiss (KISS-ICP), icp (frame-to-frame point-to-plane "
+                                        "ICP) or kiss+icp (KISS-ICP's pose corrected by ICP)."),
+             ):
+    """Estimate the camera trajectory of a recording (T_world_cam per frame, the first camera as the world)."""
+    from .datasets import open_recording
+    from .odometry import OdometryConfig
+    from .odometry_run import errors_against, run_odometry, write_odometry
+
+    cfg = OdometryConfig(method=method)
+    check_folder(out, "output folder")
+    rec = open_recording(recording, format)
+    if len(rec) == 0:
+        fail(f"{recording}: no frames")
+    with _progress(rate=True, detections=False) as prog:
+        task = prog.add_task("odometry", total=len(rec))
+
+        def on_frame(ref, err):
+            if err:
+                prog.console.print(f"[yellow]skipped[/] scene {ref.scene_id} image {ref.im_id}: {escape(err)}",
+                                   highlight=False, soft_wrap=True)
+            prog.update(task, advance=1)
+
+        run = run_odometry(rec, cfg, on_frame=on_frame)
+    if not run.poses:
+        fail(f"{recording}: no frame could be read")
+    files = write_odometry(out, run, cfg)
+    console.print(f"{len(run.poses)} frame(s), odometry {run.frames_per_second:.1f} frames/s, {len(run.failed)} "
+                  f"skipped -> {', '.join(str(f) for f in files)}")
+    truth = rec.camera_poses()
+    if truth:
+        t = Table(title="against the recording's camera poses")
+        for c in ("scene", "frames", "ATE (mm)", "RPE (mm)", "RPE (deg)"):
+            t.add_column(c, justify="right")
+        for sid, (ate, rt, rr) in errors_against(run, truth).items():
+            n = sum(r.scene_id == sid for r in run.poses)
+            t.add_row(str(sid), str(n), f"{ate * 1000:.1f}", f"{rt * 1000:.1f}", f"{rr:.2f}")
+        out_console.print(t)
+
+
 class _RateColumn(ProgressColumn):
     """Frames per second over the last few frames."""
 

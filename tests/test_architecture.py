@@ -18,7 +18,7 @@ LAYERS = [
                 "global_verify", "odometry", "scene", "model_views", "model", "prepared_model", "image"]),
     ("configuration and library", ["config", "model_cache", "library"]),
     ("composers", ["detector", "register", "tracking", "runner", "executors", "evaluate", "synth", "viz",
-                   "diagnose"]),
+                   "diagnose", "odometry_run"]),
     ("command line", ["cli", "console", "image.cli", "__init__"]),
 ]
 
