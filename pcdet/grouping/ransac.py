@@ -159,8 +159,13 @@ class RansacGrouper:
         pred = np.einsum("nij,nj->ni", T[rows, :3, :3], cm[cols]) + T[rows, :3, 3]
         hit = active[cols] & (np.linalg.norm(pred - cs[cols], axis=1) < tau)
         n_s = len(cs) // k
-        key = np.unique(rows[hit] * n_s + cols[hit] // k)
-        score = np.bincount(key // n_s, minlength=len(tri))
+        key = rows[hit] * n_s + cols[hit] // k
+        if len(tri) * n_s <= 64_000_000:  # mark (triplet, scene keypoint) cells: linear, where unique sorts
+            mark = np.zeros(len(tri) * n_s, bool)
+            mark[key] = True
+            score = np.count_nonzero(mark.reshape(len(tri), n_s), axis=1)
+        else:
+            score = np.bincount(np.unique(key) // n_s, minlength=len(tri))
         order = np.lexsort((np.arange(len(tri)), -score))  # best first, ties by draw order: deterministic
         order = order[score[order] + 3 >= min_inl]
         limit = c.rescore if overlap is not None else c.alternatives + 1
@@ -232,8 +237,13 @@ def _second_order(start: np.ndarray, deg: np.ndarray, nbr: np.ndarray) -> tuple[
     src = np.repeat(np.arange(M), deg)
     A = sparse.csr_matrix((np.ones(len(nbr), np.float32), (src, nbr)), shape=(M, M))
     AA = (A @ A).tocsr()
-    common = np.asarray(AA[src, nbr]).reshape(-1) if len(nbr) else np.zeros(0)
-    return common.astype(np.float64), src * M + nbr
+    AA.sort_indices()
+    keys = src * M + nbr
+    # look every edge up among A^2's entries by key (scipy's fancy indexing is 10x slower)
+    akeys = np.repeat(np.arange(M, dtype=np.int64), np.diff(AA.indptr)) * M + AA.indices
+    pos = np.minimum(np.searchsorted(akeys, keys), max(len(akeys) - 1, 0))
+    common = np.where(akeys[pos] == keys, AA.data[pos], 0.0) if len(akeys) else np.zeros(len(keys))
+    return common.astype(np.float64), keys
 
 
 @dataclass

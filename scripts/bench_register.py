@@ -1,0 +1,142 @@
+"""Scan-to-scan and model-to-scan registration with no initial guess on real range scans: pcdet's ``register``
+beside Open3D's recipe (FPFH + RANSAC on feature matches + point-to-plane ICP, as in its global-registration
+tutorial) on the same pairs, in one run.
+
+Pairs: every neighbouring pair of ../shared/data/stanford_scans (the dragon scanned every 24 degrees: pairs 24
+and 48 degrees apart, 30 in all) and the bunny (scan bun045 onto bun000, and the mesh onto each scan). The true
+T_target_source comes from the .conf files (a "bmesh FILE tx ty tz qx qy qz qw" line maps the scan's points X to
+the common frame by R(q)^T X + t). A pair succeeds when the source points' RMS displacement between the found and
+the true alignment is under 2 mm. Both methods get the same points (read beforehand, so file reading is not
+timed) and sample at the same voxel (1/40 of the source's extent).
+
+Run:  python scripts/bench_register.py [--limit N]
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from pcdet.cloud import diameter
+from pcdet.io.clouds import read_cloud
+from pcdet.io.models import load_geometry
+from pcdet.register import RegisterConfig, register
+
+DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
+SUCCESS_M = 0.002
+
+
+def read_conf(path: Path) -> dict[str, np.ndarray]:
+    """``{file name: T_common_scan}`` from a Stanford .conf file."""
+    out = {}
+    for line in path.read_text().splitlines():
+        w = line.split()
+        if w and w[0] == "bmesh":
+            T = np.eye(4)
+            T[:3, :3] = Rotation.from_quat([float(v) for v in w[5:9]]).as_matrix().T
+            T[:3, 3] = [float(v) for v in w[2:5]]
+            out[w[1]] = T
+    return out
+
+
+def points(path: Path) -> np.ndarray:
+    """A scan's points, or the bunny mesh's vertices (m)."""
+    return load_geometry(path, units="m").vertices if "zipper" in path.name else read_cloud(path).points
+
+
+def open3d_recipe(src: np.ndarray, tgt: np.ndarray, voxel: float, seed: int = 0) -> np.ndarray:
+    """Open3D's global registration tutorial at ``voxel``: downsample, normals (2 voxel), FPFH (5 voxel), RANSAC
+    on feature matches (distance 1.5 voxel, edge-length and distance checkers, 100k iterations, 0.999), then
+    point-to-plane ICP (0.4 voxel). Returns T_target_source."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    o3d.utility.random.seed(seed)
+
+    def prep(p):
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p)).voxel_down_sample(voxel)
+        pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel, max_nn=30))
+        f = reg.compute_fpfh_feature(pc, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100))
+        return pc, f
+
+    s, sf = prep(src)
+    t, tf = prep(tgt)
+    d = 1.5 * voxel
+    res = reg.registration_ransac_based_on_feature_matching(
+        s, t, sf, tf, True, d, reg.TransformationEstimationPointToPoint(False), 3,
+        [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(d)],
+        reg.RANSACConvergenceCriteria(100000, 0.999))
+    icp = reg.registration_icp(s, t, 0.4 * voxel, res.transformation, reg.TransformationEstimationPointToPlane())
+    return np.asarray(icp.transformation)
+
+
+def rms_displacement(T: np.ndarray, T_true: np.ndarray, pts: np.ndarray) -> float:
+    d = pts @ (T[:3, :3] - T_true[:3, :3]).T + (T[:3, 3] - T_true[:3, 3])
+    return float(np.sqrt(np.mean(np.sum(d ** 2, axis=1))))
+
+
+def pairs() -> list[tuple[Path, Path, np.ndarray, str]]:
+    """(source, target, true T_target_source, label) for every pair in the benchmark."""
+    out = []
+    d = DATA / "stanford_scans"
+    if d.is_dir():
+        conf = read_conf(d / "dragonStandRight.conf")
+        for gap in (24, 48):
+            for a in range(0, 360, 24):
+                b = (a + gap) % 360
+                sa, sb = f"dragonStandRight_{a}.ply", f"dragonStandRight_{b}.ply"
+                out.append((d / sa, d / sb, np.linalg.inv(conf[sb]) @ conf[sa], f"dragon {a} -> {b} ({gap} deg)"))
+    d = DATA / "bunny"
+    if d.is_dir():
+        conf = read_conf(d / "bun.conf")
+        out.append((d / "bun045.ply", d / "bun000.ply", np.linalg.inv(conf["bun000.ply"]) @ conf["bun045.ply"],
+                    "bunny scan 45 -> 0"))
+        for scan in ("bun000.ply", "bun045.ply"):  # the mesh is in the common frame
+            out.append((d / "bun_zipper_res3.ply", d / scan, np.linalg.inv(conf[scan]), f"bunny mesh -> {scan}"))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--limit", type=int, default=0, help="Only the first N pairs (0: all).")
+    ap.add_argument("--iterations", type=int, default=None, help="pcdet's RANSAC draws (default: RegisterConfig's).")
+    a = ap.parse_args()
+    todo = pairs()[: a.limit or None]
+    print("| pair | pcdet error (mm) | pcdet s | Open3D error (mm) | Open3D s |")
+    print("|---|---|---|---|---|")
+    rows = []
+    for src, tgt, T_true, label in todo:
+        sp = points(src)
+        voxel = diameter(sp) / 40.0
+        tp_ = points(tgt)
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            cfg = RegisterConfig(voxel=voxel)
+            if a.iterations:
+                cfg = dataclasses.replace(cfg, iterations=a.iterations)
+            r = register(sp, tp_, cfg, units="m")
+        t_p = time.perf_counter() - t0
+        e_p = rms_displacement(r.T_target_source, T_true, sp)
+        t0 = time.perf_counter()
+        T_o = open3d_recipe(sp, tp_, voxel)
+        t_o = time.perf_counter() - t0
+        e_o = rms_displacement(T_o, T_true, sp)
+        rows.append((label, e_p, t_p, e_o, t_o))
+        print(f"| {label} | {e_p * 1000:.2f} | {t_p:.2f} | {e_o * 1000:.2f} | {t_o:.2f} |", flush=True)
+    print("\n| method | within 2 mm | median s/pair | time vs pcdet |")
+    print("|---|---|---|---|")
+    tp = np.median([r[2] for r in rows])
+    for name, ei, ti in (("pcdet register", 1, 2), ("Open3D FPFH + RANSAC + ICP", 3, 4)):
+        ok = sum(r[ei] < SUCCESS_M for r in rows)
+        tm = np.median([r[ti] for r in rows])
+        print(f"| {name} | {ok}/{len(rows)} | {tm:.2f} | {tm / tp:.2f}x |")
+
+
+if __name__ == "__main__":
+    main()
