@@ -136,7 +136,8 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
                                        "result files are removed first)."),
         track: bool = typer.Option(False, help="Track objects through the recording (full detection on the "
                                    "first frame, every --redetect-every frames and after a loss; ICP from the "
-                                   "predicted pose between) and write tracks.json."),
+                                   "predicted pose between); writes results.csv, frames/ and tracks.json, and "
+                                   "resumes with --resume."),
         redetect_every: int = typer.Option(15, help="With --track: full detection every N frames (0: only "
                                            "when a track is lost)."),
         workers: int = typer.Option(1, help="Processes to spread frames (with --track: scenes) over; with "
@@ -162,8 +163,11 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
         fail(f"--executor takes local or ray, got {executor!r}")
     if resume and overwrite:
         fail("--resume keeps what OUT holds and --overwrite removes it: give one of them")
-    if track and (resume or targets):
-        fail("--track follows each scene from its first frame: it takes no --resume or --targets")
+    if track and targets:
+        fail("--track follows each scene from its first frame: it takes no --targets")
+    if track and resume and (workers > 1 or executor != "local"):
+        fail("--track --resume continues from the checkpoints of a run in this process: use --workers 1 and the "
+             "local executor")
     cfg = _pipeline(pipeline, seed, grouping)
     rec = open_recording(recording, format)
     if len(rec) == 0:
@@ -179,7 +183,8 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
     try:
         lib = _library(models, cfg, units)
         if track:
-            return _run_tracking(rec, lib, cfg, folder.path, redetect_every, workers, executor, ray_address)
+            return _run_tracking(rec, lib, cfg, folder.path, redetect_every, workers, executor, ray_address,
+                                 resume=resume, times=times)
         return _run_detection(rec, lib, cfg, folder, RunOptions(
             targets=targets == "gt", resume=resume, workers=workers, threads=threads, executor=executor,
             ray_address=ray_address, record_time=times, version=__version__))
@@ -213,16 +218,30 @@ def _run_detection(rec, lib, cfg, folder, opts):
 
 
 def _run_tracking(rec, lib, cfg, out: Path, redetect_every: int, workers: int, executor: str,
-                  ray_address: str | None):
-    from .tracking import TrackingConfig, track_recording, write_tracks_json
+                  ray_address: str | None, *, resume: bool = False, times: bool = False):
+    from .tracking import (
+        TrackingConfig,
+        track_into,
+        track_recording,
+        write_tracked_frame,
+        write_tracking_outputs,
+    )
 
     tcfg = TrackingConfig(redetect_every=redetect_every)
     with _progress(rate=True, detections=False) as prog:
         task = prog.add_task("tracking", total=len(rec))
-        res = track_recording(rec, lib, cfg, tcfg, workers=workers, executor=executor, ray_address=ray_address,
-                              on_frame=lambda i, mode, s: prog.update(task, advance=1))
+        tick = lambda i, mode, s: prog.update(task, advance=1)  # noqa: E731
+        if workers <= 1 and executor == "local":
+            res = track_into(rec, lib, cfg, out, tcfg, resume=resume, version=__version__, record_time=times,
+                             on_frame=tick)
+        else:  # scenes spread over processes or Ray: each scene's frames are written when it comes back
+            res = track_recording(rec, lib, cfg, tcfg, workers=workers, executor=executor, ray_address=ray_address,
+                                  on_frame=tick)
+            for sid, r in res.items():
+                for i, ref in enumerate([f for f in rec if f.scene_id == sid]):
+                    write_tracked_frame(out, rec, ref, r, i, pipeline=cfg.to_dict(), version=__version__)
+            write_tracking_outputs(out, rec, res, cfg, version=__version__, record_time=times)
         prog.update(task, completed=len(rec))
-    write_tracks_json(out / "tracks.json", rec, res, cfg.to_dict(), __version__)
     modes = [m for r in res.values() for m in r.modes]
     for sid, r in res.items():
         for f, m in zip([f for f in rec if f.scene_id == sid], r.modes):
@@ -232,7 +251,8 @@ def _run_tracking(rec, lib, cfg, out: Path, redetect_every: int, workers: int, e
     tr = [s for r in res.values() for s, m in zip(r.seconds, r.modes) if m == "track"]
     fps = f", tracking frames {1 / np.median(tr):.1f} frames/s" if tr else ""
     console.print(f"{len(rec)} frame(s) in {len(res)} scene(s), {modes.count('detect')} full detection(s), "
-                  f"{sum(len(r.tracks) for r in res.values())} track(s){fps} -> {out / 'tracks.json'}")
+                  f"{sum(len(r.tracks) for r in res.values())} track(s){fps} -> {out / 'results.csv'}, "
+                  f"{out / 'tracks.json'}")
 
 
 @app.command()

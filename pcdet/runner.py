@@ -102,7 +102,8 @@ class RunFolder:
         written = sorted(self.frames.glob("*.json")) if self.frames.is_dir() else []
         old_path = self.path / "run.json"
         if overwrite:
-            for p in written + [self.path / f for f in RUN_FILES]:
+            states = sorted((self.path / "tracking_state").glob("*.pkl"))
+            for p in written + states + [self.path / f for f in RUN_FILES]:
                 p.unlink(missing_ok=True)
             return
         if not written and not old_path.exists():

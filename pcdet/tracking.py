@@ -12,6 +12,10 @@ The world frame is the first camera's. Frame by frame:
      onto the same points in the map (objects do not move, so any disagreement is camera drift). The corrected
      pose goes back to the odometry.
 Every track keeps its per-frame world pose estimate (corrected camera pose x observed object pose).
+
+``track_into`` writes what detection writes (a detections JSON per frame as it is done, ``results.csv`` rebuilt
+from them) plus ``tracks.json``, and checkpoints the tracker after every frame, so that a killed run resumes
+where it stopped and gives the same ``results.csv``.
 """
 from __future__ import annotations
 
@@ -23,9 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from .align import kabsch, transform
-from .detector import Detector
+from .detector import Detection, DetectionResult, Detector
 from .frame import Frame
-from .io.atomic import atomic_write_text
+from .errors import InputError
+from .io.atomic import atomic_write_bytes, atomic_write_text
 from .odometry import Odometry, OdometryConfig
 
 
@@ -77,12 +82,14 @@ class Track:
 @dataclass
 class TrackingResult:
     """Per frame: the corrected ``T_world_cam`` (None for a frame that could not be read), the mode ("detect",
-    "track" or "failed: <why>") and the seconds it took; and the tracks."""
+    "track" or "failed: <why>"), the seconds it took and the objects seen in it (``Detection`` s, camera
+    frame, as ``Detector.detect`` gives them); and the tracks."""
 
     tracks: list[Track]
     camera_poses: list[np.ndarray | None]
     modes: list[str]
     seconds: list[float]
+    detections: list[list[Detection]] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         """The tracks, camera poses and frame modes as tracks.json stores them."""
@@ -101,6 +108,7 @@ class Tracker:
         self.odo = Odometry(self.cfg.odometry)
         self.tracks: list[Track] = []
         self.index = -1
+        self.last_detections: list[Detection] = []
 
     def step(self, frame: Frame) -> tuple[np.ndarray, str]:
         """Process the next frame: returns (corrected T_world_cam, "detect" or "track")."""
@@ -116,14 +124,15 @@ class Tracker:
         if obs:
             T_wc = self._correct_camera(obs, T_wc)
             self.odo.reset(T_wc)
-        for tr, T_cm, score in obs:
+        for tr, T_cm, score, _ in obs:
             tr.frames.append(self.index)
             tr.poses.append(T_wc @ T_cm)
             tr.scores.append(score)
             tr.modes.append(mode)
+        self.last_detections = [d for *_, d in obs]
         return T_wc, mode
 
-    def _detect(self, frame: Frame, T_wc: np.ndarray) -> list[tuple[Track, np.ndarray, float]]:
+    def _detect(self, frame: Frame, T_wc: np.ndarray) -> list[tuple[Track, np.ndarray, float, Detection]]:
         res = self.det.detect(frame)
         obs = []
         used: set[int] = set()
@@ -143,12 +152,12 @@ class Tracker:
                 self.tracks.append(best)
             used.add(best.id)
             best.lost = False
-            obs.append((best, T_cm, float(d.score)))
+            obs.append((best, T_cm, float(d.score), d))
         for tr in self.tracks:
             tr.lost = False  # a full detection settles every loss: missing objects simply are not in view
         return obs
 
-    def _track(self, frame: Frame, T_wc: np.ndarray) -> list[tuple[Track, np.ndarray, float]]:
+    def _track(self, frame: Frame, T_wc: np.ndarray) -> list[tuple[Track, np.ndarray, float, Detection]]:
         T_cw = np.linalg.inv(T_wc)
         T_cam_input = np.linalg.inv(frame.T_input_cam)
         obs = []
@@ -159,13 +168,13 @@ class Tracker:
             if r.detection is None or r.detection.score < self.cfg.min_score:
                 tr.lost = True
                 continue
-            obs.append((tr, T_cam_input @ r.detection.T_cam_model, float(r.detection.score)))
+            obs.append((tr, T_cam_input @ r.detection.T_cam_model, float(r.detection.score), r.detection))
         return obs
 
     def _correct_camera(self, obs, T_wc: np.ndarray) -> np.ndarray:
         """The camera pose that best maps the observed objects onto the map: Kabsch on their model samples."""
         src, dst = [], []
-        for tr, T_cm, _ in obs:
+        for tr, T_cm, *_ in obs:
             p = self.det.models[tr.model_index].icp_points
             src.append(transform(T_cm, p))
             dst.append(transform(tr.T_world_model, p))
@@ -176,12 +185,21 @@ class Tracker:
             return T if np.linalg.norm((T @ np.linalg.inv(T_wc))[:3, 3]) < 0.05 else T_wc
         return kabsch(src, dst)
 
-    def run(self, rec, on_frame=None) -> TrackingResult:
+    def run(self, rec, on_frame=None, *, checkpoint=None, result: TrackingResult | None = None
+            ) -> TrackingResult:
         """Track through every frame of recording ``rec``; ``on_frame(i, mode, seconds)`` after each. A frame
-        that cannot be read is reported in its mode and skipped (the odometry bridges the gap)."""
-        poses, modes, secs = [], [], []
-        for i, ref in enumerate(rec):
+        that cannot be read is reported in its mode and skipped (the odometry bridges the gap).
+
+        result : a partial result to continue (from ``restore``): its frames are not tracked again.
+        checkpoint : ``checkpoint(i, ref, result, tracker)`` after each frame, before the next (writers use it
+            to store the frame's detections and the tracker's state)."""
+        res = result or TrackingResult(self.tracks, [], [], [], [])
+        res.tracks = self.tracks
+        refs = list(rec)
+        for i in range(len(res.modes), len(refs)):
+            ref = refs[i]
             t0 = time.perf_counter()
+            self.last_detections = []
             try:
                 frame = rec.frame(ref)
             except (ValueError, OSError) as e:  # an unreadable frame: reported in the result, tracking goes on
@@ -193,12 +211,36 @@ class Tracker:
                     T, mode = self.step(frame)
                 except (ValueError, OSError) as e:  # e.g. no valid depth in range
                     T, mode = None, f"failed: {e}"
-            secs.append(time.perf_counter() - t0)
-            poses.append(T)
-            modes.append(mode)
+            res.seconds.append(time.perf_counter() - t0)
+            res.camera_poses.append(T)
+            res.modes.append(mode)
+            res.detections.append(list(self.last_detections))
+            if checkpoint:
+                checkpoint(i, ref, res, self)
             if on_frame:
-                on_frame(i, mode, secs[-1])
-        return TrackingResult(self.tracks, poses, modes, secs)
+                on_frame(i, mode, res.seconds[-1])
+        return res
+
+    def state(self, result: TrackingResult) -> bytes:
+        """The tracker's state (odometry, tracks, frame index) and ``result`` so far, as bytes for
+        ``restore``; the detector is not part of it. KISS-ICP's state cannot be saved, so trackers whose odometry
+        uses it cannot checkpoint."""
+        import pickle
+
+        if self.odo.kiss is not None:
+            raise InputError("tracking with KISS-ICP odometry cannot be checkpointed (its state cannot be saved); "
+                             "use odometry method 'icp'")
+        return pickle.dumps({"odo": self.odo, "tracks": self.tracks, "index": self.index, "result": result},
+                            protocol=4)
+
+    def restore(self, state: bytes) -> TrackingResult:
+        """Continue from ``state(result)``: odometry, tracks and frame index as they were; returns the result so
+        far, to hand to ``run``."""
+        import pickle
+
+        d = pickle.loads(state)
+        self.odo, self.tracks, self.index = d["odo"], d["tracks"], d["index"]
+        return d["result"]
 
 
 class _Scene:
@@ -251,3 +293,73 @@ def track_recording(rec, library, cfg, tcfg: TrackingConfig | None = None, *, wo
     results = map_chunks(_track_chunk, (rec, library, cfg, tcfg), list(scenes.values()), workers=workers,
                          executor=executor, ray_address=ray_address)
     return dict(zip(scenes, results))
+
+
+def track_into(rec, library, cfg, out, tcfg: TrackingConfig | None = None, *, resume: bool = False,
+               version: str = "", record_time: bool = False, on_frame=None) -> dict[int, TrackingResult]:
+    """Track every scene of ``rec`` in this process and write into the folder ``out`` what detection writes:
+    ``frames/<scene>_<image>.json`` (the objects seen, camera frame) as each frame is done, then
+    ``results.csv`` (BOP, rebuilt from the frame files), ``config.toml``, ``failures.json`` and ``tracks.json``.
+    After each frame the tracker's state (odometry, map, tracks) goes to ``tracking_state/<scene>.pkl``, so a
+    killed run continued with ``resume`` picks up where its last checkpoint was and writes the same
+    ``results.csv`` as a run that never stopped. ``on_frame(i, mode, seconds)`` after each frame tracked."""
+    import pickle
+
+    out = Path(out)
+    tcfg = tcfg or TrackingConfig()
+    pipeline = cfg.to_dict()
+    state_dir = out / "tracking_state"
+    state_dir.mkdir(parents=True, exist_ok=True)
+    (out / "frames").mkdir(exist_ok=True)
+    scenes: dict[int, list] = {}
+    for ref in rec:
+        scenes.setdefault(ref.scene_id, []).append(ref)
+    det = Detector(library, cfg)
+    results = {}
+    for sid, refs in scenes.items():
+        tracker = Tracker(det, tcfg)
+        ck = state_dir / f"{sid:06d}.pkl"
+        partial = None
+        if resume and ck.is_file():
+            try:
+                partial = tracker.restore(ck.read_bytes())
+            except (OSError, pickle.UnpicklingError, EOFError, KeyError):
+                raise InputError("its tracking checkpoint cannot be read: start over with --overwrite", ck) from None
+
+        def checkpoint(i, ref, res, trk):
+            write_tracked_frame(out, rec, ref, res, i, pipeline=pipeline, version=version)
+            atomic_write_bytes(ck, trk.state(res))
+
+        results[sid] = tracker.run(_Scene(rec, refs), on_frame, checkpoint=checkpoint, result=partial)
+    write_tracking_outputs(out, rec, results, cfg, version=version, record_time=record_time)
+    return results
+
+
+def write_tracked_frame(out, rec, ref, res: TrackingResult, i: int, *, pipeline: dict, version: str) -> None:
+    """Frame ``i`` of a scene's result as ``out/frames/<scene>_<image>.json`` (nothing for a failed frame)."""
+    from .io.results import write_detections_json
+    from .runner import frame_json_path
+
+    if res.modes[i].startswith("failed"):
+        return
+    info = {"scene_id": ref.scene_id, "im_id": ref.im_id, "source": rec.source(ref), "mode": res.modes[i]}
+    if ref.timestamp is not None:
+        info["timestamp"] = ref.timestamp
+    write_detections_json(frame_json_path(Path(out), ref), info,
+                          DetectionResult(res.detections[i], {"track": res.seconds[i]}), pipeline, version)
+
+
+def write_tracking_outputs(out, rec, results: dict[int, TrackingResult], cfg, *, version: str = "",
+                           record_time: bool = False) -> None:
+    """``results.csv`` (from the frame files), ``config.toml``, ``failures.json`` and ``tracks.json``."""
+    from .config import dump_toml
+    from .io.bop import write_results_csv
+    from .runner import describe, results_rows
+
+    out = Path(out)
+    write_results_csv(out / "results.csv", results_rows(out, list(rec), record_time))
+    atomic_write_text(out / "config.toml", dump_toml(cfg))
+    failed = [{"image": describe(ref), "error": m[8:]} for sid, r in results.items()
+              for ref, m in zip([f for f in rec if f.scene_id == sid], r.modes) if m.startswith("failed")]
+    atomic_write_text(out / "failures.json", json.dumps(failed, indent=1))
+    write_tracks_json(out / "tracks.json", rec, results, cfg.to_dict(), version)
