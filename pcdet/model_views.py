@@ -24,6 +24,9 @@ class ModelConfig:
 
     views: int = param(30, "rendered partial views per model for its descriptors")
     view_distance: float = param(0.7, "m; distance of those virtual cameras from the model")
+    view_noise: float = param(0.0015, "m; standard deviation of depth noise added along the rays of each rendered "
+                                      "view before its normals and descriptors are computed, so that they look "
+                                      "like a real sensor's (0: clean views)")
 
     def __post_init__(self):
         check_positive(self, "views", "view_distance")
@@ -94,10 +97,14 @@ def view_features(points: np.ndarray, normals: np.ndarray, cfg: DescriptorParams
         if vis.sum() < 20:
             continue
         vp = pc[vis]
-        vn = estimate_normals(vp, pp.normal_radius, pp.normal_max_nn)  # toward the camera, as in a scene
+        dp = vp
+        if mc.view_noise > 0:  # a sensor's depth noise, so that model descriptors look like a real scene's
+            rng = np.random.default_rng(len(out_p) + 7919 * int(vis.sum()))
+            dp = vp + vp / np.linalg.norm(vp, axis=1, keepdims=True) * rng.normal(0, mc.view_noise, (len(vp), 1))
+        vn = estimate_normals(dp, pp.normal_radius, pp.normal_max_nn)  # toward the camera, as in a scene
         kp = select_keypoints(vp, cfg.keypoints)
-        feats = fpfh(vp, vn, kp, cfg.features)
-        F, _ = shot_lrf(vp, vp[kp], cfg.features.lrf_support)
+        feats = fpfh(dp, vn, kp, cfg.features)
+        F, _ = shot_lrf(dp, dp[kp], cfg.features.lrf_support)
         out_p.append((vp[kp] - T_cam_model[:3, 3]) @ R)
         out_n.append(vn[kp] @ R)
         out_f.append(feats)

@@ -61,3 +61,19 @@ def random_pose(rng, scale_t=0.1) -> np.ndarray:
     T[:3, :3] = Rotation.from_rotvec(rng.normal(size=3)).as_matrix()
     T[:3, 3] = rng.normal(size=3) * scale_t
     return T
+
+
+def kill_after_frames(cmd: list[str], out: Path, n: int, timeout: float = 180.0) -> int:
+    """Start ``cmd`` (a ``pcdet run`` into ``out``), SIGKILL it once ``n`` frame files are in ``out/frames``,
+    and return how many were written by then."""
+    import signal
+    import subprocess
+    import time
+
+    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + timeout
+    while len(list((out / "frames").glob("*.json"))) < n and time.time() < deadline and p.poll() is None:
+        time.sleep(0.05)
+    p.send_signal(signal.SIGKILL)
+    p.wait()
+    return len(list((out / "frames").glob("*.json")))

@@ -9,10 +9,11 @@ from pcdet.register import register
 from .conftest import shared
 
 
-def _conf(d):
-    """bun.conf: scan points X map into the model frame by X_model = R(q)^T X + t (see SOURCE.txt)."""
+def _conf(d, name="bun.conf"):
+    """A Stanford .conf file: scan points X map into the common (model) frame by X_model = R(q)^T X + t (see the
+    bunny's SOURCE.txt)."""
     poses = {}
-    for line in (d / "bun.conf").read_text().splitlines():
+    for line in (d / name).read_text().splitlines():
         w = line.split()
         if w and w[0] == "bmesh":
             T = np.eye(4)
@@ -54,14 +55,7 @@ def test_dragon_scan_to_scan_within_2mm(a, b):
     """Two partial range scans of the Stanford dragon 24 or 48 degrees apart, no initial guess: the source scan's
     points land within 2 mm RMS of where dragonStandRight.conf puts them (measured 0.4-0.6 mm)."""
     d = shared("stanford_scans")
-    conf = {}
-    for line in (d / "dragonStandRight.conf").read_text().splitlines():
-        w = line.split()
-        if w and w[0] == "bmesh":
-            T = np.eye(4)
-            T[:3, :3] = Rotation.from_quat([float(v) for v in w[5:9]]).as_matrix().T
-            T[:3, 3] = [float(v) for v in w[2:5]]
-            conf[w[1]] = T
+    conf = _conf(d, "dragonStandRight.conf")
     src, tgt = d / f"dragonStandRight_{a}.ply", d / f"dragonStandRight_{b}.ply"
     T_true = np.linalg.inv(conf[tgt.name]) @ conf[src.name]
     r = register(src, tgt, units="m")

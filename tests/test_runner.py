@@ -2,10 +2,8 @@
 output, and a corrupt frame in the middle of a recording is reported and skipped."""
 import importlib.util
 import json
-import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -14,6 +12,8 @@ from pcdet.datasets import open_recording
 from pcdet.io.depth import write_depth_png
 from pcdet.runner import RunOptions, run_recording
 from pcdet.synth import SynthConfig, synthesize
+
+from .conftest import kill_after_frames
 
 # not imported here: pcdet must be the first to import Ray to keep a local instance on loopback
 requires_ray = pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed")
@@ -40,13 +40,7 @@ def test_killed_run_resumed_gives_the_same_results(recording, uninterrupted, tmp
     """`pcdet run` is killed (SIGKILL) after its second frame is written; `--resume` finishes the job."""
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "pcdet.cli", "run", str(recording), "--out", str(out)]
-    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.time() + 120
-    while len(list((out / "frames").glob("*.json"))) < 2 and time.time() < deadline and p.poll() is None:
-        time.sleep(0.05)
-    p.send_signal(signal.SIGKILL)
-    p.wait()
-    done = len(list((out / "frames").glob("*.json")))
+    done = kill_after_frames(cmd, out, 2, timeout=120)
     assert 2 <= done < 6, f"{done} frames written before the kill: the test did not interrupt the run"
     assert not (out / "results.csv").exists()
     r = subprocess.run(cmd + ["--resume"], capture_output=True, text=True)

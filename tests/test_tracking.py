@@ -85,19 +85,12 @@ def test_tracking_writes_frames_and_a_results_csv_that_eval_scores(recording, tr
 def test_killed_tracking_run_resumed_gives_the_same_results(recording, tracked, tmp_path):
     """`pcdet run --track` is killed (SIGKILL) after some frames are written; --resume continues from the last
     checkpoint (odometry, map, tracks) and writes a byte-identical results.csv."""
-    import signal
-    import time
+    from .conftest import kill_after_frames
 
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "pcdet.cli", "run", str(recording), "--out", str(out), "--track",
            "--redetect-every", "0"]
-    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.time() + 180
-    while len(list((out / "frames").glob("*.json"))) < 4 and time.time() < deadline and p.poll() is None:
-        time.sleep(0.05)
-    p.send_signal(signal.SIGKILL)
-    p.wait()
-    done = len(list((out / "frames").glob("*.json")))
+    done = kill_after_frames(cmd, out, 4)
     assert 4 <= done < 20, f"{done} frames written before the kill: the test did not interrupt the run"
     assert not (out / "results.csv").exists()
     r = subprocess.run(cmd + ["--resume"], capture_output=True, text=True)
