@@ -269,6 +269,8 @@ def odometry(recording: Path = typer.Argument(..., help="Recording folder: BOP, 
     from .odometry import OdometryConfig
     from .odometry_run import errors_against, run_odometry, write_odometry
 
+    if method not in ("kiss", "icp", "kiss+icp"):
+        fail(f"--method takes kiss, icp or kiss+icp, got {method!r}")
     cfg = OdometryConfig(method=method)
     check_folder(out, "output folder")
     rec = open_recording(recording, format)

@@ -111,6 +111,8 @@ def test_odometry_command_on_real_kinect_frames(tmp_path):
             shutil.copy(src / f"frame-{i:06d}.{kind}", rec_dir)
     data = (rec_dir / "frame-000024.depth.png").read_bytes()  # the recording's 13th frame, im_id 12
     (rec_dir / "frame-000024.depth.png").write_bytes(data[: len(data) // 3])
+    bad = CliRunner().invoke(app, ["odometry", str(rec_dir), "--out", str(tmp_path / "odo"), "--method", "slam"])
+    assert bad.exit_code != 0 and "--method takes kiss, icp or kiss+icp, got 'slam'" in bad.output
     res = CliRunner().invoke(app, ["odometry", str(rec_dir), "--out", str(tmp_path / "odo")])
     assert res.exit_code == 0, res.output
     assert "skipped scene 1 image 12" in res.output and "ATE (mm)" in res.output
