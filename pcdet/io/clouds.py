@@ -45,14 +45,19 @@ def _pcd_shape(path: Path) -> tuple[int, int] | None:
     return None
 
 
-def ply_elements(path) -> dict[str, int]:
-    """``{element name: count}`` from a PLY header, in file order; ``InputError`` when the file is not PLY."""
+def _ply_header(path) -> list[bytes]:
+    """The header lines of a PLY file (up to ``end_header``); ``InputError`` when the file is not PLY."""
     with open(path, "rb") as f:
         head = f.read(65536)
     if not head.startswith(b"ply"):
         raise InputError("not a PLY file (it does not start with 'ply')", path)
+    return head.split(b"end_header")[0].splitlines()
+
+
+def ply_elements(path) -> dict[str, int]:
+    """``{element name: count}`` from a PLY header, in file order; ``InputError`` when the file is not PLY."""
     out = {}
-    for ln in head.split(b"end_header")[0].splitlines():
+    for ln in _ply_header(path):
         w = ln.split()
         if len(w) == 3 and w[0] == b"element" and w[2].isdigit():
             out[w[1].decode("ascii", "replace")] = int(w[2])
@@ -62,13 +67,8 @@ def ply_elements(path) -> dict[str, int]:
 def _open3d_reads_ply(path: Path) -> bool:
     """Whether the PLY header is one open3d's reader takes (no obj_info lines, only vertex and face elements);
     ``InputError`` when the file is not PLY at all."""
-    with open(path, "rb") as f:
-        head = f.read(65536)
-    if not head.startswith(b"ply"):
-        raise InputError("not a PLY file (it does not start with 'ply')", path)
-    lines = head.split(b"end_header")[0].splitlines()
-    elements = {ln.split()[1] for ln in lines if ln.startswith(b"element ") and len(ln.split()) > 1}
-    return not any(ln.startswith(b"obj_info") for ln in lines) and elements <= {b"vertex", b"face"}
+    lines = _ply_header(path)
+    return not any(ln.startswith(b"obj_info") for ln in lines) and set(ply_elements(path)) <= {"vertex", "face"}
 
 
 def _ascii_ply_vertices(path: Path) -> np.ndarray | None:
