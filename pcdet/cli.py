@@ -221,6 +221,7 @@ def _run_tracking(rec, lib, cfg, out: Path, redetect_every: int, workers: int, e
                   ray_address: str | None, *, resume: bool = False, times: bool = False):
     from .tracking import (
         TrackingConfig,
+        frames_by_scene,
         track_into,
         track_recording,
         write_tracked_frame,
@@ -238,13 +239,14 @@ def _run_tracking(rec, lib, cfg, out: Path, redetect_every: int, workers: int, e
             res = track_recording(rec, lib, cfg, tcfg, workers=workers, executor=executor, ray_address=ray_address,
                                   on_frame=tick)
             for sid, r in res.items():
-                for i, ref in enumerate([f for f in rec if f.scene_id == sid]):
+                for i, ref in enumerate(frames_by_scene(rec)[sid]):
                     write_tracked_frame(out, rec, ref, r, i, pipeline=cfg.to_dict(), version=__version__)
             write_tracking_outputs(out, rec, res, cfg, version=__version__, record_time=times)
         prog.update(task, completed=len(rec))
     modes = [m for r in res.values() for m in r.modes]
+    by_scene = frames_by_scene(rec)
     for sid, r in res.items():
-        for f, m in zip([f for f in rec if f.scene_id == sid], r.modes):
+        for f, m in zip(by_scene[sid], r.modes):
             if m.startswith("failed"):
                 console.print(f"[yellow]skipped[/] scene {sid} image {f.im_id}: {escape(m[8:])}", highlight=False,
                               soft_wrap=True)
@@ -261,17 +263,18 @@ def odometry(recording: Path = typer.Argument(..., help="Recording folder: BOP, 
                                               "depth/ + camera.json."),
              out: Path = typer.Option(..., help="Output folder: trajectory.txt (TUM format) and odometry.toml."),
              format: str = typer.Option("auto", help="Reader: auto, bop, tum, redwood, 7scenes, folder."),
-             method: str = typer.Option("kiss+icp", help="kiss (KISS-ICP), icp (frame-to-frame point-to-plane "
-                                        "ICP) or kiss+icp (KISS-ICP's pose corrected by ICP)."),
+             method: Optional[str] = typer.Option(None, help="icp (point-to-plane ICP against a local map of "
+                                                  "keyframes; the default), kiss (KISS-ICP) or kiss+icp (KISS-ICP's "
+                                                  "pose corrected by that ICP)."),
              ):
     """Estimate the camera trajectory of a recording (T_world_cam per frame, the first camera as the world)."""
     from .datasets import open_recording
     from .odometry import OdometryConfig
     from .odometry_run import errors_against, run_odometry, write_odometry
 
-    if method not in ("kiss", "icp", "kiss+icp"):
+    if method not in (None, "kiss", "icp", "kiss+icp"):
         fail(f"--method takes kiss, icp or kiss+icp, got {method!r}")
-    cfg = OdometryConfig(method=method)
+    cfg = OdometryConfig() if method is None else OdometryConfig(method=method)
     check_folder(out, "output folder")
     rec = open_recording(recording, format)
     if len(rec) == 0:
