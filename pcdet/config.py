@@ -195,7 +195,7 @@ def dump_toml(cfg: PipelineConfig, comments: bool = True) -> str:
                 subs.append((v, name))
                 continue
             doc = docs.get(name)
-            lines.append(f"{f.name} = {_toml_value(v)}" + (f"  # {doc}" if doc else ""))
+            lines.append(f"{f.name} = {toml_value(v)}" + (f"  # {doc}" if doc else ""))
         for v, name in subs:
             lines.extend(["", f"[{name}]"])
             section(v, name)
@@ -204,7 +204,8 @@ def dump_toml(cfg: PipelineConfig, comments: bool = True) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _toml_value(v) -> str:
+def toml_value(v) -> str:
+    """A Python value (bool, str, number, list) as TOML writes it."""
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, str):

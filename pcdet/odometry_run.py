@@ -16,8 +16,8 @@ from typing import Callable
 
 import numpy as np
 
+from .config import toml_value
 from .datasets.base import FrameRef
-from .errors import InputError
 from .io.atomic import atomic_write_text
 from .io.trajectory import write_tum
 from .odometry import Odometry, OdometryConfig
@@ -51,7 +51,7 @@ def run_odometry(rec, cfg: OdometryConfig | None = None, *,
             odo, scene = Odometry(cfg), ref.scene_id
         try:
             frame = rec.frame(ref)
-        except (InputError, FileNotFoundError) as e:
+        except (ValueError, OSError) as e:  # InputError, missing or unreadable files: skip this frame
             odo.skip()
             out.failed.append((ref, str(e)))
             if on_frame:
@@ -99,9 +99,6 @@ def write_odometry(folder, run: OdometryRun, cfg: OdometryConfig) -> list[Path]:
         stamps = [r.timestamp if r.timestamp is not None else float(r.im_id) for r in refs]
         files.append(write_tum(folder / name, stamps, [run.poses[r] for r in refs]))
     lines = ["# pcdet odometry: the resolved configuration (OdometryConfig)", "[odometry]"]
-    for f in dataclasses.fields(cfg):
-        v = getattr(cfg, f.name)
-        lines.append(f"{f.name} = " + (f'"{v}"' if isinstance(v, str) else str(v).lower() if isinstance(v, bool)
-                                      else repr(v)))
+    lines += [f"{f.name} = {toml_value(getattr(cfg, f.name))}" for f in dataclasses.fields(cfg)]
     atomic_write_text(folder / "odometry.toml", "\n".join(lines) + "\n")
     return files

@@ -137,13 +137,15 @@ def register(source, target, config: RegisterConfig | None = None, *, units="aut
         rc2 = RefineConfig(iterations=cfg.icp_iterations, max_distance=dist, kernel=kern)
         best = icp(sp, tp, tn, best.T_target_source, rc2, target_tree=tree)
     t3 = time.perf_counter()
-    d, _ = cKDTree(transform(best.T_target_source, sp)).query(tp, distance_upper_bound=1.5 * voxel)
-    coverage = float(np.isfinite(d).mean())
-    if max(best.fitness, coverage) < LOW_OVERLAP:
-        warnings.warn(f"after alignment only {best.fitness:.0%} of the source lies on the target and {coverage:.0%} "
+    # both shares at 1.5 voxel, as documented (the last ICP round's own fitness counts only half a voxel)
+    moved = transform(best.T_target_source, sp)
+    fitness = float(np.isfinite(tree.query(moved, distance_upper_bound=1.5 * voxel)[0]).mean())
+    coverage = float(np.isfinite(cKDTree(moved).query(tp, distance_upper_bound=1.5 * voxel)[0]).mean())
+    if max(fitness, coverage) < LOW_OVERLAP:
+        warnings.warn(f"after alignment only {fitness:.0%} of the source lies on the target and {coverage:.0%} "
                       f"of the target on the source (within {1.5 * voxel * 1000:.1f} mm): the inputs may not "
                       "overlap, or may not be the same object", RegistrationWarning, stacklevel=2)
-    return Registration(best.T_target_source, best.fitness, best.rmse_m, best_h.n_inliers, len(hyps),
+    return Registration(best.T_target_source, fitness, best.rmse_m, best_h.n_inliers, len(hyps),
                         {"load": t1 - t0, "global": t2 - t1, "icp": t3 - t2}, coverage)
 
 

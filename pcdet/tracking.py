@@ -243,6 +243,14 @@ class Tracker:
         return d["result"]
 
 
+def frames_by_scene(rec) -> dict[int, list]:
+    """The frame refs of ``rec`` per scene id, in recording order (each scene is tracked on its own)."""
+    out: dict[int, list] = {}
+    for ref in rec:
+        out.setdefault(ref.scene_id, []).append(ref)
+    return out
+
+
 class _Scene:
     """The frames of one scene of a recording, as a recording of its own (what ``Tracker.run`` reads)."""
 
@@ -266,9 +274,9 @@ def _track_chunk(shared, refs) -> TrackingResult:
 
 def write_tracks_json(path, rec, results: dict[int, TrackingResult], pipeline: dict, version: str) -> Path:
     """``tracks.json``: per scene of ``rec``, its frames' image ids, tracks, camera poses and frame modes."""
-    scenes = []
+    scenes, by_scene = [], frames_by_scene(rec)
     for sid, r in results.items():
-        refs = [f for f in rec if f.scene_id == sid]
+        refs = by_scene[sid]
         scenes.append({"scene_id": sid, "frames": [f.im_id for f in refs], **r.to_dict()})
     doc = {"pcdet_version": version, "recording": str(rec.root), "format": rec.format, "scenes": scenes,
            "pipeline": pipeline}
@@ -284,9 +292,7 @@ def track_recording(rec, library, cfg, tcfg: TrackingConfig | None = None, *, wo
     from .executors import map_chunks
 
     tcfg = tcfg or TrackingConfig()
-    scenes: dict[int, list] = {}
-    for ref in rec:
-        scenes.setdefault(ref.scene_id, []).append(ref)
+    scenes = frames_by_scene(rec)
     if executor == "local" and (workers <= 1 or len(scenes) < 2):
         return {sid: Tracker(Detector(library, cfg), tcfg).run(_Scene(rec, refs), on_frame)
                 for sid, refs in scenes.items()}
@@ -311,9 +317,7 @@ def track_into(rec, library, cfg, out, tcfg: TrackingConfig | None = None, *, re
     state_dir = out / "tracking_state"
     state_dir.mkdir(parents=True, exist_ok=True)
     (out / "frames").mkdir(exist_ok=True)
-    scenes: dict[int, list] = {}
-    for ref in rec:
-        scenes.setdefault(ref.scene_id, []).append(ref)
+    scenes = frames_by_scene(rec)
     det = Detector(library, cfg)
     results = {}
     for sid, refs in scenes.items():
@@ -359,7 +363,8 @@ def write_tracking_outputs(out, rec, results: dict[int, TrackingResult], cfg, *,
     out = Path(out)
     write_results_csv(out / "results.csv", results_rows(out, list(rec), record_time))
     atomic_write_text(out / "config.toml", dump_toml(cfg))
+    scenes = frames_by_scene(rec)
     failed = [{"image": describe(ref), "error": m[8:]} for sid, r in results.items()
-              for ref, m in zip([f for f in rec if f.scene_id == sid], r.modes) if m.startswith("failed")]
+              for ref, m in zip(scenes[sid], r.modes) if m.startswith("failed")]
     atomic_write_text(out / "failures.json", json.dumps(failed, indent=1))
     write_tracks_json(out / "tracks.json", rec, results, cfg.to_dict(), version)
