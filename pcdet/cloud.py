@@ -153,15 +153,16 @@ def support_region(points: np.ndarray, plane: Plane, max_height: float, min_heig
     u = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
     u /= np.linalg.norm(u)
     v = np.cross(n, u)
-    uv = np.stack([points @ u, points @ v], axis=1)
     h = points @ n + plane.offset
-    inside = np.zeros(len(points), bool)
+    out = (h > min_height) & (h < max_height)
+    test = np.flatnonzero(out)  # the outline test only for points at a height that could stand on the plane
+    uv = np.stack([points @ u, points @ v], axis=1)
     try:
         outline = uv[plane.inliers][ConvexHull(uv[plane.inliers]).vertices]
-        inside = Delaunay(outline).find_simplex(uv) >= 0
+        out[test] = Delaunay(outline).find_simplex(uv[test]) >= 0
     except Exception:  # qhull: a degenerate (collinear) plane has no outline; nothing stands on it
-        pass
-    return inside & (h > min_height) & (h < max_height)
+        out[:] = False
+    return out
 
 
 def euclidean_clusters(points: np.ndarray, tolerance: float, min_size: int = 1) -> np.ndarray:

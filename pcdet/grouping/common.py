@@ -31,26 +31,22 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
     mp = np.ascontiguousarray(model_pts, dtype=np.float32)
     mn = np.ascontiguousarray(model_nrm, dtype=np.float32)
     tol = np.float32(np.radians(normal_tolerance_deg))
-    # the candidates' model points at both ends of every pair, gathered once: (P, k, 3)
-    ca_all, cb_all = cand[a], cand[b]
-    pa, pb = mp[np.maximum(ca_all, 0)], mp[np.maximum(cb_all, 0)]
+    flat = cand.reshape(-1)
     lo2 = np.maximum(fs[:, 0] - edge_tolerance, 0) ** 2  # squared bounds: no square root per candidate pair
     hi2 = (fs[:, 0] + edge_tolerance) ** 2
     ca_parts, cb_parts = [], []
-    # one pass per (r1, r2) candidate pair: the cheap length test first, angles only for what passes it
-    for r1 in range(k):
-        for r2 in range(k):
-            dv = pb[:, r2] - pa[:, r1]
-            l2 = np.einsum("ij,ij->i", dv, dv)
-            ma, mb = ca_all[:, r1], cb_all[:, r2]
-            sel = np.flatnonzero((l2 > lo2) & (l2 < hi2) & (ma >= 0) & (mb >= 0) & (ma != mb))
-            ma, mb = ma[sel], mb[sel]
-            fm = pair_features(mp[ma], mn[ma], mp[mb], mn[mb])
-            d = np.abs(fs[sel, 1:] - fm[:, 1:])
-            keep = (d[:, 0] < tol) & (d[:, 1] < tol) & (d[:, 2] < tol)
-            sel = sel[keep]
-            ca_parts.append(a[sel] * k + r1)
-            cb_parts.append(b[sel] * k + r2)
+    for pair, ia, ib in _candidate_pairs(a, b, cand):
+        ma, mb = flat[ia], flat[ib]
+        dv = mp[mb] - mp[ma]
+        l2 = np.einsum("ij,ij->i", dv, dv)
+        # the cheap length test first, the angles only for what passes it
+        sel = np.flatnonzero((l2 > lo2[pair]) & (l2 < hi2[pair]) & (ma != mb))
+        ma, mb = ma[sel], mb[sel]
+        fm = pair_features(mp[ma], mn[ma], mp[mb], mn[mb])
+        d = np.abs(fs[pair[sel], 1:] - fm[:, 1:])
+        keep = sel[(d[:, 0] < tol) & (d[:, 1] < tol) & (d[:, 2] < tol)]
+        ca_parts.append(ia[keep])
+        cb_parts.append(ib[keep])
     ca = np.concatenate(ca_parts) if ca_parts else np.zeros(0, np.int64)
     cb = np.concatenate(cb_parts) if cb_parts else np.zeros(0, np.int64)
     src = np.concatenate([ca, cb])
@@ -60,6 +56,33 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
     deg = np.bincount(src, minlength=M)
     start = np.concatenate([[0], np.cumsum(deg)[:-1]]).astype(np.int64)
     return start, deg, dst.astype(np.int64)
+
+
+def _candidate_pairs(a: np.ndarray, b: np.ndarray, cand: np.ndarray, chunk: int = 1 << 22):
+    """Every (candidate of a, candidate of b) of the scene pairs (a, b), valid candidates only, in chunks of
+    about ``chunk``: yields (pair index into a and b, correspondence id at a, correspondence id at b). When
+    most candidates are valid, one chunk per (r1, r2) column pair; when many are missing (a colour gate left
+    few), each pair's valid candidates are enumerated so that no work goes to missing ones."""
+    S, k = cand.shape
+    valid = cand >= 0
+    if valid.mean() > 0.6:
+        for r1 in range(k):
+            for r2 in range(k):
+                pair = np.flatnonzero(valid[a, r1] & valid[b, r2])
+                yield pair, a[pair] * k + r1, b[pair] * k + r2
+        return
+    count = valid.sum(axis=1)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])
+    corr = np.flatnonzero(valid.reshape(-1))  # ids (s * k + r) of the valid candidates, keypoint by keypoint
+    n_ab = count[a] * count[b]
+    ends = np.cumsum(n_ab)
+    bounds = np.searchsorted(ends, np.arange(chunk, int(ends[-1]) if len(ends) else 0, chunk))
+    for lo, hi in zip(np.concatenate([[0], bounds]), np.concatenate([bounds, [len(a)]])):
+        n = n_ab[lo:hi]
+        pair = np.repeat(np.arange(lo, hi), n)
+        q = ramp(n)
+        nb = count[b[pair]]
+        yield pair, corr[first[a[pair]] + q // nb], corr[first[b[pair]] + q % nb]
 
 
 def correspondence_points(scene_pts: np.ndarray, cand: np.ndarray, model_pts: np.ndarray
