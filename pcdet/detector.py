@@ -17,6 +17,7 @@ import numpy as np
 
 from .align import transform
 from .cloud import estimate_normals, voxel_downsample
+from .colour import chromaticity, colour_within, image_colours
 from .config import PipelineConfig
 from .features import fpfh
 from .frame import Frame
@@ -25,7 +26,7 @@ from .grouping import Hypothesis, make_grouper
 from .grouping.common import distinct_poses
 from .keypoints import select_keypoints
 from .library import ModelLibrary
-from .matching import match_features
+from .matching import Candidates, match_features
 from .prepared_model import PreparedModel
 from .preprocess import preprocess
 from .refine import RefineConfig, RegistrationResult, icp
@@ -189,10 +190,18 @@ class Detector:
             if kcfg.method == "voxel":
                 kcfg = dataclasses.replace(kcfg, spacing=self.keypoint_spacing(models))
             kp = select_keypoints(cloud.points, kcfg)
+            colours = None
+            if frame.rgb is not None and cfg.matching.colour_gate > 0:
+                colours = chromaticity(image_colours(cloud.points[kp], frame.camera, frame.rgb))
+                palette = [pm.colours for pm in models]
+                if palette and all(c is not None for c in palette):
+                    # a keypoint whose colour no model has can match nothing: it is not described at all
+                    keep = colour_within(colours, np.concatenate(palette), cfg.matching.colour_gate)
+                    kp, colours = kp[keep], colours[keep]
         with tm("features"):
             feats = fpfh(cloud.points, cloud.normals, kp, cfg.features)
         return Scene(cloud.points, cloud.normals, cloud.labels, cloud.plane, kp, feats,
-                     lrf_radius=cfg.features.lrf_support)
+                     lrf_radius=cfg.features.lrf_support, colours=colours)
 
     def _hypotheses(self, scene: Scene, models: list[PreparedModel], tm: _Timer, trace: Trace | None = None
                     ) -> list[Hypothesis]:
@@ -201,13 +210,17 @@ class Detector:
         cfg = self.config
         seeds = np.random.SeedSequence(cfg.seed).spawn(len(self.library))
         spacing = self.keypoint_spacing(models) if cfg.keypoints.method == "voxel" else cfg.keypoints.spacing
-        if self.grouper.needs_lrfs:
-            with tm("lrf"):
-                scene.lrfs
         with tm("matching"):
             cands = {pm.index: match_features(scene.descriptors, pm.model.features, cfg.matching,
-                                              model_tree=pm.descriptor_tree, workers=self.workers)
+                                              model_tree=pm.descriptor_tree, workers=self.workers,
+                                              scene_colours=scene.colours, model_colours=pm.colours)
                      for pm in models}
+        if self.grouper.needs_lrfs:
+            with tm("lrf"):  # only keypoints with a candidate take part in grouping
+                used = np.zeros(len(scene.keypoints), bool)
+                for c in cands.values():
+                    used |= (c.model >= 0).any(axis=1)
+                scene.lrfs_of(np.flatnonzero(used))
         if trace is not None:
             trace.candidates = cands
         with tm("grouping"):
@@ -215,8 +228,11 @@ class Detector:
                 # large models need no denser grid of scene points than diameter / grid_per_diameter
                 step = max(cfg.keypoints.spacing, pm.model.diameter / cfg.grouping.grid_per_diameter)
                 view = scene.keypoints_at(step, min_step=spacing)
-                return self.grouper.group(view, pm, cands[pm.index].rows(view.index),
-                                          np.random.default_rng(seeds[pm.index]))
+                rows = cands[pm.index].rows(view.index)
+                has = (rows.model >= 0).any(axis=1)
+                if not has.all():  # keypoints left without a candidate (by colour) take no part in grouping
+                    view, rows = view.subset(has), Candidates(rows.model[has], rows.distance[has])
+                return self.grouper.group(view, pm, rows, np.random.default_rng(seeds[pm.index]))
 
             return [h for hs in self._map(group, models) for h in hs]
 

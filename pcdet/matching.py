@@ -14,12 +14,19 @@ from .params import check_positive, param
 class MatchingConfig:
     """Descriptor matching: how many candidates per scene keypoint, ratio and mutual tests."""
 
-    k: int = param(4, "candidate model keypoints kept per scene keypoint (nearest in FPFH space)")
+    k: int = param(8, "candidate model keypoints kept per scene keypoint (nearest in FPFH space)")
     ratio: float = param(1.0, "Lowe ratio test on the nearest two (1.0: off, keep k)")
     mutual: bool = param(False, "keep only mutual nearest neighbours")
+    colour_gate: float = param(0.25, "where the frame and the model both have colour: a candidate whose "
+                                     "chromaticity differs from the scene keypoint's by more than this is refused "
+                                     "(3 (r, g) / (r + g + b); grey is (1, 1)); 0: colour unused")
+    colour_pool: int = param(16, "with colour: the k candidates are the first that pass the gate among this many "
+                                 "nearest in FPFH space")
 
     def __post_init__(self):
-        check_positive(self, "k")
+        check_positive(self, "k", "colour_pool")
+        if self.colour_gate < 0:
+            raise ConfigError(f"MatchingConfig.colour_gate must be >= 0 (0 disables it), got {self.colour_gate}")
         if not 0 < self.ratio <= 1:
             raise ConfigError(f"MatchingConfig.ratio must be in (0, 1] (1 disables the test), got {self.ratio}")
 
@@ -50,20 +57,28 @@ class Candidates:
 
 
 def match_features(scene_features: np.ndarray, model_features: np.ndarray, cfg: MatchingConfig, *,
-                   model_tree: cKDTree | None = None, workers: int = 1) -> Candidates:
+                   model_tree: cKDTree | None = None, workers: int = 1, scene_colours: np.ndarray | None = None,
+                   model_colours: np.ndarray | None = None) -> Candidates:
     """Each scene descriptor (S, 33) keeps its ``cfg.k`` nearest model descriptors (D, 33).
 
     With ``cfg.ratio < 1`` only the nearest is kept, and only when it is closer than ``ratio`` times the second
     (Lowe's test). With ``cfg.mutual`` a candidate is kept only if the scene descriptor is also the model
-    descriptor's nearest.
+    descriptor's nearest. With ``scene_colours`` (S, 2) and ``model_colours`` (D, 2) (chromaticity,
+    ``colour.chromaticity``; NaN: unknown) and ``cfg.colour_gate`` > 0, the candidates are the ``k`` nearest
+    among the ``colour_pool`` nearest whose colour is within the gate (or unknown at either end); a scene
+    keypoint whose colour no model keypoint near it in FPFH space has keeps no candidate.
     """
     S, D = len(scene_features), len(model_features)
     if S == 0 or D == 0:
         return Candidates(np.full((S, 1), -1, np.int64), np.full((S, 1), np.inf))
     tree = model_tree if model_tree is not None else cKDTree(model_features)
+    gate = cfg.colour_gate > 0 and scene_colours is not None and model_colours is not None
     k = min(cfg.k if cfg.ratio >= 1 else 2, D)
-    dist, idx = tree.query(scene_features, k=k, workers=workers)  # exact search: same answer on any thread count
-    dist, idx = dist.reshape(S, k), idx.reshape(S, k).astype(np.int64)
+    pool = min(max(cfg.colour_pool, k), D) if gate else k
+    dist, idx = tree.query(scene_features, k=pool, workers=workers)  # exact search: same on any thread count
+    dist, idx = dist.reshape(S, pool), idx.reshape(S, pool).astype(np.int64)
+    if gate:
+        dist, idx = _colour_gate(dist, idx, scene_colours, model_colours, cfg.colour_gate, k)
     if cfg.ratio < 1 and k >= 2:
         ok = dist[:, 0] < cfg.ratio * dist[:, 1]
         dist, idx = dist[:, :1].copy(), idx[:, :1].copy()
@@ -76,3 +91,16 @@ def match_features(scene_features: np.ndarray, model_features: np.ndarray, cfg: 
         idx[bad] = -1
         dist[bad] = np.inf
     return Candidates(idx, dist)
+
+
+def _colour_gate(dist: np.ndarray, idx: np.ndarray, scene_colours: np.ndarray, model_colours: np.ndarray,
+                 gate: float, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Of each row's candidates (S, pool), nearest first, the first ``k`` whose chromaticity is within ``gate``
+    of the scene keypoint's (unknown colours pass), as (S, k) tables (-1 / inf where fewer pass)."""
+    diff = np.linalg.norm(scene_colours[:, None, :] - model_colours[idx], axis=2)
+    ok = ~(diff > gate)  # NaN (unknown colour) passes
+    order = np.argsort(~ok, axis=1, kind="stable")[:, :k]  # passing candidates first, in FPFH order
+    keep = np.take_along_axis(ok, order, axis=1)
+    out_idx = np.where(keep, np.take_along_axis(idx, order, axis=1), -1)
+    out_dist = np.where(keep, np.take_along_axis(dist, order, axis=1), np.inf)
+    return out_dist, out_idx

@@ -10,6 +10,7 @@ import numpy as np
 
 from .cloud import diameter as cloud_diameter
 from .cloud import estimate_normals, outward_normals, voxel_downsample
+from .colour import surface_colours
 from .errors import InputError
 from .io.models import as_geometry
 from .model_views import DescriptorParams, view_features
@@ -27,6 +28,8 @@ class ObjectModel:
     diameter : largest distance between two model points (m).
     vertices, faces : (V, 3) float64 m and (F, 3) int64 when the model is a mesh, else None.
     scale : factor applied to the file's coordinates to get metres.
+    kp_colors : (K, 3) float32 colour in [0, 1] of the surface around each keypoint (from the file's vertex
+        colours or texture), or None when the model has no colour.
     """
 
     name: str
@@ -43,6 +46,7 @@ class ObjectModel:
     vertices: np.ndarray | None = None
     faces: np.ndarray | None = None
     notes: list[str] = field(default_factory=list)
+    kp_colors: np.ndarray | None = None
 
     @property
     def is_mesh(self) -> bool:
@@ -92,5 +96,8 @@ def build_model(source, cfg: DescriptorParams, *, units="auto", obj_id: int = 0,
     kpp, kpn, feats, lrfs = view_features(pts, nrm, cfg, diameter=diameter, vertices=vv, faces=faces)
     if len(kpp) < 3:
         raise InputError("no view of the model yields keypoints: is it flat, tiny, or in the wrong units?", path)
+    colours = None
+    if g.colors is not None:
+        colours = surface_colours(kpp, verts, g.colors).astype(np.float32)
     return ObjectModel(name or path.stem, int(obj_id), "" if in_memory else str(path), pts, nrm, kpp, kpn, feats,
-                       lrfs, diameter, g.scale, vv, faces, g.notes)
+                       lrfs, diameter, g.scale, vv, faces, g.notes, colours)

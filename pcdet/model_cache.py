@@ -17,7 +17,7 @@ from .io.atomic import atomic_write_bytes
 from .io.models import UnitsWarning
 from .model import ObjectModel, build_model
 
-CACHE_VERSION = 8
+CACHE_VERSION = 9
 
 
 def _hash_file(path: Path) -> str:
@@ -46,6 +46,8 @@ def _save(model: ObjectModel, path: Path) -> None:
     arrays = {k: getattr(model, k) for k in ("points", "normals", "kp_points", "kp_normals", "features", "kp_lrfs")}
     if model.is_mesh:
         arrays.update(vertices=model.vertices, faces=model.faces)
+    if model.kp_colors is not None:
+        arrays.update(kp_colors=model.kp_colors)
     np.savez(buf, meta=np.array(json.dumps(meta)), **arrays)
     atomic_write_bytes(path, buf.getvalue())
 

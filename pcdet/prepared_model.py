@@ -8,6 +8,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .cloud import voxel_downsample
+from .colour import chromaticity
 from .model import ObjectModel
 from .render import MeshCaster
 
@@ -17,7 +18,8 @@ class PreparedModel:
     """model : the object; index : its position in the library (hypotheses name it);
     icp_points, icp_normals : (P, 3) samples and outward normals (model frame, m) that ICP moves;
     reference : (3,) the model point Hough votes are cast for (m); descriptor_tree : KD-tree over
-    ``model.features``; caster : the mesh's ray-casting structure for verification (None for point models)."""
+    ``model.features``; caster : the mesh's ray-casting structure for verification (None for point models);
+    colours : (K, 2) chromaticity of the keypoints (``colour.chromaticity``), None when the model has no colour."""
 
     model: ObjectModel
     index: int
@@ -26,6 +28,7 @@ class PreparedModel:
     reference: np.ndarray
     descriptor_tree: cKDTree
     caster: MeshCaster | None = None
+    colours: np.ndarray | None = None
 
     @classmethod
     def build(cls, model: ObjectModel, index: int, *, icp_spacing: float) -> "PreparedModel":
@@ -33,5 +36,6 @@ class PreparedModel:
         the Hough reference is the centre of the model's bounding box."""
         p, n, _ = voxel_downsample(model.points, icp_spacing, model.normals, representatives=False)
         caster = MeshCaster(model.vertices, model.faces) if model.is_mesh else None
+        colours = chromaticity(model.kp_colors) if model.kp_colors is not None else None
         return cls(model, index, p, n, (model.points.max(0) + model.points.min(0)) / 2, cKDTree(model.features),
-                   caster)
+                   caster, colours)

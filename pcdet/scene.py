@@ -40,8 +40,8 @@ class SceneKeypoints:
     """The scene keypoints one grouper call works on (camera frame, metres).
 
     points, normals : (S, 3); labels : (S,) int64 Euclidean cluster of each (all 0 when unknown);
-    lrfs : (S, 3, 3) SHOT frames (rows x, y, z; NaN where invalid), given as an array or as a function that
-        computes them on first use; None when there are none;
+    lrfs : (S, 3, 3) SHOT frames (rows x, y, z; NaN where invalid), given as an array or as a function of
+        ``index`` that computes them on first use (``Scene.lrfs_of``); None when there are none;
     cloud_tree : KD-tree of the whole scene cloud the keypoints come from, or None;
     index : (S,) positions of these keypoints in the frame's keypoint list.
     ``cached(key, compute)`` keeps what a grouper derives from the view (its point pairs, say) for the next
@@ -49,7 +49,7 @@ class SceneKeypoints:
     """
 
     def __init__(self, points: np.ndarray, normals: np.ndarray, *, labels: np.ndarray | None = None,
-                 lrfs: np.ndarray | Callable[[], np.ndarray] | None = None, cloud_tree: cKDTree | None = None,
+                 lrfs: np.ndarray | Callable[[np.ndarray], np.ndarray] | None = None, cloud_tree: cKDTree | None = None,
                  index: np.ndarray | None = None):
         self.points = np.asarray(points, float)
         self.normals = np.asarray(normals, float)
@@ -63,11 +63,18 @@ class SceneKeypoints:
     def lrfs(self) -> np.ndarray | None:
         """(S, 3, 3) SHOT frames of the keypoints (NaN where invalid), or None."""
         if callable(self._lrfs):
-            return self._memo.get("lrfs", self._lrfs)
+            return self._memo.get("lrfs", lambda: self._lrfs(self.index))
         return self._lrfs
 
     def __len__(self) -> int:
         return len(self.points)
+
+    def subset(self, mask: np.ndarray) -> "SceneKeypoints":
+        """A new view of the keypoints where ``mask`` (S,) bool is set (its own cache; LRFs taken from this
+        view's on first use)."""
+        lrfs = self._lrfs if self._lrfs is None or callable(self._lrfs) else self._lrfs[mask]
+        return SceneKeypoints(self.points[mask], self.normals[mask], labels=self.labels[mask], lrfs=lrfs,
+                              cloud_tree=self.cloud_tree, index=self.index[mask])
 
     def cached(self, key: Hashable, compute: Callable[[], V]) -> V:
         """``compute()`` once per ``key`` for this view; later calls (from any thread) get the same value."""
@@ -80,22 +87,40 @@ class Scene:
     points, normals : (N, 3) voxel-grid scene points (m) and normals facing the camera; labels : (N,) cluster of
     each; plane : the removed supporting plane or None; tree : KD-tree of the points (None when empty);
     keypoints : (K,) int64 indices into points; descriptors : (K, 33) float32 FPFH of each;
-    lrf_radius : m, support of the keypoints' local reference frames.
+    lrf_radius : m, support of the keypoints' local reference frames;
+    colours : (K, 2) float32 chromaticity of each keypoint (``colour.chromaticity``; NaN where unknown), or None
+        when the frame has no colour image.
     """
 
     def __init__(self, points: np.ndarray, normals: np.ndarray, labels: np.ndarray, plane: Plane | None,
-                 keypoints: np.ndarray, descriptors: np.ndarray, *, lrf_radius: float):
+                 keypoints: np.ndarray, descriptors: np.ndarray, *, lrf_radius: float,
+                 colours: np.ndarray | None = None):
         self.points, self.normals, self.labels, self.plane = points, normals, labels, plane
-        self.keypoints, self.descriptors = keypoints, descriptors
+        self.keypoints, self.descriptors, self.colours = keypoints, descriptors, colours
         self.lrf_radius = lrf_radius
         self.tree = cKDTree(points) if len(points) else None
         self._memo = _Memo()
+        self._lrf_lock = threading.Lock()
+        self._lrf = np.full((len(keypoints), 3, 3), np.nan)
+        self._lrf_done = np.zeros(len(keypoints), bool)
 
     @property
     def lrfs(self) -> np.ndarray:
-        """(K, 3, 3) SHOT frames of the keypoints (NaN where too few points support one); computed once."""
-        return self._memo.get("lrfs", lambda: shot_lrf(self.points, self.points[self.keypoints],
-                                                       self.lrf_radius, self.tree)[0])
+        """(K, 3, 3) SHOT frames of the keypoints (NaN where too few points support one); each computed once."""
+        return self.lrfs_of(np.arange(len(self.keypoints)))
+
+    def lrfs_of(self, index: np.ndarray) -> np.ndarray:
+        """(len(index), 3, 3) SHOT frames of the keypoints ``index`` (positions in ``keypoints``), computed on
+        first request and kept (a frame depends on its keypoint and the cloud only, so the order and the
+        grouping of the requests do not change it)."""
+        index = np.asarray(index, np.int64)
+        with self._lrf_lock:
+            todo = np.unique(index[~self._lrf_done[index]])
+            if len(todo):
+                self._lrf[todo] = shot_lrf(self.points, self.points[self.keypoints[todo]], self.lrf_radius,
+                                           self.tree)[0]
+                self._lrf_done[todo] = True
+            return self._lrf[index]
 
     def keypoints_at(self, step: float, *, min_step: float) -> SceneKeypoints:
         """The keypoints at least ``step`` m apart (one per voxel of that side; all of them when ``step`` is
@@ -106,6 +131,6 @@ class Scene:
             sub = np.arange(len(kp)) if step <= min_step * 1.05 else \
                 np.sort(voxel_downsample(self.points[kp], step)[2])
             return SceneKeypoints(self.points[kp[sub]], self.normals[kp[sub]], labels=self.labels[kp[sub]],
-                                  lrfs=lambda: self.lrfs[sub], cloud_tree=self.tree, index=sub)
+                                  lrfs=self.lrfs_of, cloud_tree=self.tree, index=sub)
 
         return self._memo.get(("view", step), build)

@@ -13,6 +13,7 @@ object instance):
 
 Scores: recall at ADD-S < 0.1 d and at ADD < 0.1 d, median seconds per frame, and the ratios to pcdet.
 Run:  python scripts/bench_peers.py [--scenes 20] [--objects 4] [--seed 2026] [--only pcdet,o3d-careful]
+      python scripts/bench_peers.py --data ../shared/data/linemod_cat   (real frames, the dataset's own models)
 """
 from __future__ import annotations
 
@@ -186,11 +187,12 @@ def main():
     ap.add_argument("--scenes", type=int, default=20)
     ap.add_argument("--objects", type=int, default=4)
     ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--data", type=Path, default=None, help="existing BOP dataset (default: synthesise one)")
+    ap.add_argument("--data", type=Path, default=None, help="existing BOP dataset, real or synthetic, its models in "
+                    "DATA/models (default: synthesise one from models/)")
     ap.add_argument("--only", default="pcdet,pcdet-no-targets,pcdet-gc,pcdet-hough,o3d-tutorial,o3d-careful,"
                     "opencv-ppf")
     args = ap.parse_args()
-    lib = ModelLibrary.from_folder(ROOT / "models")
+    lib = ModelLibrary.from_folder(args.data / "models" if args.data else ROOT / "models")
     tmp = None
     if args.data is None:
         tmp = tempfile.TemporaryDirectory()
@@ -216,7 +218,8 @@ def main():
               f"median {np.median(times):.3f} s/frame", flush=True)
     base = next((r for r in rows if r[0] == "pcdet"), rows[0])
     n_inst = sum(sum(t.values()) for _, _, t in frames)
-    print(f"\n{len(frames)} frames, {n_inst} instances, 640x480, {len(lib)}-model library, seed {args.seed}")
+    source = f"seed {args.seed}" if tmp is not None else str(args.data)
+    print(f"\n{len(frames)} frames, {n_inst} instances, 640x480, {len(lib)}-model library, {source}")
     print(f"| method | recall ADD-S | recall ADD | median s/frame | {base[0]} recall / method | "
           f"method time / {base[0]} |")
     print("|---|---|---|---|---|---|")

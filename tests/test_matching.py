@@ -34,3 +34,33 @@ def test_mutual_keeps_only_mutual_pairs(rng):
 def test_empty_inputs():
     c = match_features(np.zeros((0, 33), np.float32), np.ones((5, 33), np.float32), MatchingConfig())
     assert len(c) == 0
+
+
+def test_colour_gate_takes_the_nearest_candidates_of_the_scene_keypoints_colour(rng):
+    model = rng.random((40, 33)).astype(np.float32)
+    scene = model[:3] + 0.001
+    red, grey, unknown = [2.0, 0.5], [1.0, 1.0], [np.nan, np.nan]
+    mcol = np.tile(np.array([grey], np.float32), (40, 1))
+    mcol[0] = red  # the FPFH-nearest model keypoint of scene row 0 is red; the scene keypoint is grey
+    mcol[2] = unknown  # a dark model keypoint: its colour cannot refuse a match
+    scol = np.array([grey, grey, grey], np.float32)
+    cfg = MatchingConfig(k=2, colour_gate=0.25, colour_pool=40)
+    c = match_features(scene, model, cfg, scene_colours=scol, model_colours=mcol)
+    assert c.model.shape == (3, 2)
+    assert 0 not in c.model[0] and (c.model[0] >= 0).all()  # the red one refused, two grey ones instead
+    assert c.model[1, 0] == 1 and c.model[2, 0] == 2
+    d = np.linalg.norm(model[c.model[0]] - scene[0], axis=1)
+    assert np.all(np.diff(d) >= 0)  # still nearest first in FPFH space
+    # without colour at either end, the gate is not applied
+    plain = match_features(scene, model, cfg, scene_colours=None, model_colours=mcol)
+    assert plain.model[0, 0] == 0
+
+
+def test_colour_gate_leaves_a_keypoint_of_a_colour_the_model_lacks_without_candidates(rng):
+    model = rng.random((30, 33)).astype(np.float32)
+    scene = model[:2] + 0.001
+    mcol = np.tile(np.array([[1.0, 1.0]], np.float32), (30, 1))
+    scol = np.array([[1.0, 1.0], [0.3, 0.4]], np.float32)  # the second is blue-ish: no grey candidate passes
+    c = match_features(scene, model, MatchingConfig(k=3, colour_gate=0.25, colour_pool=30), scene_colours=scol,
+                       model_colours=mcol)
+    assert (c.model[0] >= 0).all() and (c.model[1] == -1).all() and np.isinf(c.distance[1]).all()

@@ -28,26 +28,45 @@ class UnitsWarning(UserWarning):
 @dataclass
 class Geometry:
     """A model file's geometry in metres: vertices (V, 3), faces (F, 3) or None (point cloud), per-vertex
-    normals (V, 3) or None, the scale applied to the file's numbers, and notes about units."""
+    normals (V, 3) or None, the scale applied to the file's numbers, notes about units, and per-vertex colours
+    (V, 3) in [0, 1] or None (a mesh's vertex colours, a textured mesh's texture sampled at its vertices, or a
+    cloud's colours)."""
 
     vertices: np.ndarray
     faces: np.ndarray | None
     normals: np.ndarray | None
     scale: float
     notes: list[str]
+    colors: np.ndarray | None = None
+
+
+def _mesh_colours(geom) -> np.ndarray | None:
+    """(V, 3) colours in [0, 1] of a trimesh mesh's vertices: its vertex colours, or its texture sampled at the
+    vertices' UVs; None when it has neither (trimesh's default grey is not a colour)."""
+    visual = getattr(geom, "visual", None)
+    kind = getattr(visual, "kind", None)
+    try:
+        if kind == "texture":
+            visual = visual.to_color()
+        elif kind != "vertex":
+            return None
+        cols = np.asarray(visual.vertex_colors)
+    except Exception:  # a texture trimesh cannot sample (no image, no UVs): the mesh is used without colour
+        return None
+    if cols.ndim != 2 or len(cols) != len(geom.vertices) or cols.shape[1] < 3:
+        return None
+    return cols[:, :3].astype(np.float64) / 255.0
 
 
 def _read_geometry(path: Path):
-    """(vertices (V,3), faces (F,3) or None, normals (V,3) or None) in file units."""
+    """(vertices (V,3), faces (F,3) or None, normals (V,3) or None, colours (V,3) in [0, 1] or None) in file
+    units."""
     import trimesh
 
     suffix = path.suffix.lower()
-    if suffix in CLOUD_ONLY_SUFFIXES:
-        cd = read_cloud(path)
-        return cd.points, None, cd.normals
-    if suffix == ".ply" and not ply_elements(path).get("face", 0):  # a scanned cloud: the cloud reader is faster
-        cd = read_cloud(path)
-        return cd.points, None, cd.normals
+    if suffix in CLOUD_ONLY_SUFFIXES or (suffix == ".ply" and not ply_elements(path).get("face", 0)):
+        cd = read_cloud(path)  # a scanned cloud: the cloud reader is faster
+        return cd.points, None, cd.normals, cd.colors
     try:
         geom = trimesh.load(str(path), process=False)
     except Exception as e:  # trimesh raises many types for unreadable files; report it as the file's problem
@@ -58,12 +77,12 @@ def _read_geometry(path: Path):
             raise InputError("model file holds no mesh geometry", path)
         geom = trimesh.util.concatenate(meshes)
     if isinstance(geom, trimesh.Trimesh) and len(geom.faces) > 0:
-        return np.asarray(geom.vertices, float), np.asarray(geom.faces, np.int64), None
+        return np.asarray(geom.vertices, float), np.asarray(geom.faces, np.int64), None, _mesh_colours(geom)
     verts = np.asarray(getattr(geom, "vertices", np.zeros((0, 3))), float)
     normals = None
     if suffix == ".ply" and len(verts):  # point-only PLY: take its normals if it has them
         normals = read_cloud(path, keep_invalid=True).normals
-    return verts, None, normals
+    return verts, None, normals, None
 
 
 def resolve_scale(verts: np.ndarray, units, path: Path, notes: list[str]) -> float:
@@ -104,18 +123,21 @@ def load_geometry(path, units="auto") -> Geometry:
         raise FileNotFoundError(f"{path}: model file not found")
     if path.suffix.lower() not in MODEL_SUFFIXES:
         raise InputError(f"unknown model format {path.suffix!r}; expected one of {sorted(MODEL_SUFFIXES)}", path)
-    verts, faces, vnormals = _read_geometry(path)
+    verts, faces, vnormals, colours = _read_geometry(path)
     if faces is None:
         fin = np.isfinite(verts).all(axis=1)
         verts = verts[fin]
         vnormals = vnormals[fin] if vnormals is not None else None
+        colours = colours[fin] if colours is not None and len(colours) == len(fin) else None
+    if colours is not None and np.ptp(colours, axis=0).max() < 2 / 255:
+        colours = None  # one colour everywhere is a paint (a tool's default), not the object's appearance
     elif not np.isfinite(verts).all():
         raise InputError("mesh has non-finite vertex coordinates", path)
     if len(verts) < 3:
         raise InputError(f"model has {len(verts)} points; at least 3 are needed", path)
     notes: list[str] = []
     scale = resolve_scale(verts, units, path, notes)
-    return Geometry(verts * scale, faces, vnormals, scale, notes)
+    return Geometry(verts * scale, faces, vnormals, scale, notes, colours)
 
 
 def as_geometry(source, units="auto", name: str = "input") -> Geometry:
