@@ -179,7 +179,8 @@ class Detector:
 
     def scene(self, frame: Frame, tm: _Timer | None = None, models: list[PreparedModel] | None = None) -> Scene:
         """The frame's ``Scene`` for finding ``models`` (default: all): preprocessed cloud (the support's height
-        set by the largest of them), keypoints and their FPFH."""
+        set by the largest of them), keypoints and their FPFH; with a colour image, the keypoints' chromaticity,
+        and when every model has colour, only the keypoints whose colour some model has."""
         cfg, tm = self.config, tm or _Timer()
         models = self.models if models is None else models
         with tm("preprocess"):
