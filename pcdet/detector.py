@@ -192,10 +192,10 @@ class Detector:
                 kcfg = dataclasses.replace(kcfg, spacing=self.keypoint_spacing(models))
             kp = select_keypoints(cloud.points, kcfg)
             colours = None
-            if frame.rgb is not None and cfg.matching.colour_gate > 0:
+            palette = [pm.colours for pm in models if pm.colours is not None]
+            if frame.rgb is not None and cfg.matching.colour_gate > 0 and palette:  # colour matters to a model
                 colours = chromaticity(image_colours(cloud.points[kp], frame.camera, frame.rgb))
-                palette = [pm.colours for pm in models]
-                if palette and all(c is not None for c in palette):
+                if len(palette) == len(models):
                     # a keypoint whose colour no model has can match nothing: it is not described at all
                     keep = colour_within(colours, np.concatenate(palette), cfg.matching.colour_gate)
                     kp, colours = kp[keep], colours[keep]

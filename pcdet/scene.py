@@ -70,8 +70,8 @@ class SceneKeypoints:
         return len(self.points)
 
     def subset(self, mask: np.ndarray) -> "SceneKeypoints":
-        """A new view of the keypoints where ``mask`` (S,) bool is set (its own cache; LRFs taken from this
-        view's on first use)."""
+        """A new view of the keypoints where ``mask`` (S,) bool is set, with its own cache; its LRFs are computed
+        for its own keypoints only, on first use."""
         lrfs = self._lrfs if self._lrfs is None or callable(self._lrfs) else self._lrfs[mask]
         return SceneKeypoints(self.points[mask], self.normals[mask], labels=self.labels[mask], lrfs=lrfs,
                               cloud_tree=self.cloud_tree, index=self.index[mask])

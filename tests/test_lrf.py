@@ -47,3 +47,24 @@ def test_repeatable_under_rotation_and_noise(library):
         err = np.array([rotation_error_deg(F2[i], F1[i] @ R.T) for i in np.flatnonzero(ok)])
         shares.append(float((err < 10).mean()))
     assert min(shares) >= 0.65, f"share of frames within 10 degrees per model: {np.round(shares, 2)}"
+
+
+def test_scene_frames_on_demand_equal_the_frames_of_all_keypoints_at_once(rng):
+    """Scene.lrfs_of computes each keypoint's frame once, on request; any order or grouping of requests gives the
+    frames that computing all keypoints at once gives (a frame depends on its keypoint and the cloud only)."""
+    from pcdet.scene import Scene
+
+    pts = rng.random((4000, 3)) * 0.1
+    kp = np.arange(0, 4000, 9)
+
+    def scene():
+        return Scene(pts, np.tile([0.0, 0.0, 1.0], (4000, 1)), np.zeros(4000, np.int64), None, kp,
+                     np.zeros((len(kp), 33), np.float32), lrf_radius=0.02)
+
+    whole = scene().lrfs
+    s = scene()
+    part = s.lrfs_of(np.array([300, 7, 7, 150]))
+    np.testing.assert_array_equal(part, whole[[300, 7, 7, 150]])
+    np.testing.assert_array_equal(s.lrfs, whole)
+    view = s.keypoints_at(0.0, min_step=0.0).subset(np.arange(len(kp)) % 3 == 0)
+    np.testing.assert_array_equal(view.lrfs, whole[::3])
