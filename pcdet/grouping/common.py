@@ -95,38 +95,56 @@ def correspondence_points(scene_pts: np.ndarray, cand: np.ndarray, model_pts: np
 def distinct_poses(T: np.ndarray, order: np.ndarray, diameter: float, limit: int) -> np.ndarray:
     """The first ``limit`` entries of ``order`` (indices into T (B, 4, 4)) whose pose differs from every earlier
     kept one (rotation by more than 10 degrees or translation by more than a fifth of the diameter)."""
+    cos10, near = np.cos(np.radians(10)), 0.2 * diameter
+
+    def close(K: np.ndarray, C: np.ndarray) -> np.ndarray:  # (n,) whether each of C is near one of K
+        c = (np.einsum("kij,nij->nk", K[:, :3, :3], C[:, :3, :3]) - 1) / 2  # cos of the relative rotations
+        dt = C[:, None, :3, 3] - K[None, :, :3, 3]
+        return np.any((c > cos10) & (np.einsum("nki,nki->nk", dt, dt) < near * near), axis=1)
+
     kept: list[int] = []
-    cos10 = np.cos(np.radians(10))
-    for b in order:
+    order = np.asarray(order, np.int64)
+    for i in range(0, len(order), 256):  # a run of candidates is tested against the poses kept before it at once
+        chunk = order[i:i + 256]
         if kept:
-            K = T[kept]
-            c = (np.einsum("nij,ij->n", K[:, :3, :3], T[b, :3, :3]) - 1) / 2  # cos of the relative rotation
-            close = np.linalg.norm(K[:, :3, 3] - T[b, :3, 3], axis=1) < 0.2 * diameter
-            if np.any((c > cos10) & close):
+            chunk = chunk[~close(T[kept], T[chunk])]
+        before = len(kept)
+        for b in chunk:  # then one by one against those kept within the run
+            if len(kept) > before and close(T[kept[before:]], T[b][None])[0]:
                 continue
-        kept.append(int(b))
-        if len(kept) >= limit:
-            break
+            kept.append(int(b))
+            if len(kept) >= limit:
+                return np.array(kept, np.int64)
     return np.array(kept, np.int64)
 
 
 def refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tuple[np.ndarray, list[np.ndarray]]:
     """Robust refit of B poses (B, 4, 4) on correspondences (model cm -> scene cs, (M, 3) each): Tukey-weighted
     Kabsch with the kernel shrinking from ``tau`` to ``tau / 2``, so that wrong matches that happen to fall
-    near the object do not pull a pose. Returns the poses and, for each, the indices within ``tau`` of it."""
+    near the object do not pull a pose. Returns the poses and, for each, the indices within ``tau`` of it.
+
+    The weighting rounds see only the correspondences within ``3 tau`` of some starting pose (the others are
+    far outside every kernel); the inliers are taken among all of them."""
     T = T.copy()
-    for scale in (1.0, 1.0, 0.75, 0.5, 0.5):
-        pred = np.matmul(cm, T[:, :3, :3].transpose(0, 2, 1)) + T[:, None, :3, 3]
-        d = np.sqrt(((pred - cs[None]) ** 2).sum(axis=2))
+
+    def dist(T, cm, cs):
+        pred = np.matmul(cm, T[:, :3, :3].transpose(0, 2, 1)) + T[:, None, :3, 3] - cs[None]
+        return np.sqrt(np.einsum("bmi,bmi->bm", pred, pred))
+
+    d = dist(T, cm, cs)
+    near = np.flatnonzero((d < 3 * tau).any(axis=0))
+    sm, ss, d = cm[near], cs[near], d[:, near]
+    for n, scale in enumerate((1.0, 1.0, 0.75, 0.5, 0.5)):
+        if n:
+            d = dist(T, sm, ss)
         c = tau * scale
         inside = d < c
         ok = inside.sum(axis=1) >= 3
         if not ok.any():
             break
         w = np.where(inside[ok], (1 - (d[ok] / c) ** 2) ** 2, 0.0) + 1e-12
-        T[ok] = kabsch_shared(cm, cs, w)
-    pred = np.matmul(cm, T[:, :3, :3].transpose(0, 2, 1)) + T[:, None, :3, 3]
-    d = np.sqrt(((pred - cs[None]) ** 2).sum(axis=2))
+        T[ok] = kabsch_shared(sm, ss, w)
+    d = dist(T, cm, cs)
     return T, [np.flatnonzero(row < tau) for row in d]
 
 
