@@ -24,7 +24,7 @@ class ModelConfig:
 
     views: int = param(30, "rendered partial views per model for its descriptors")
     view_distance: float = param(0.7, "m; distance of those virtual cameras from the model")
-    view_noise: float = param(0.0, "m; standard deviation of depth noise added along the rays of each rendered "
+    view_noise: float = param(0.0015, "m; standard deviation of depth noise added along the rays of each rendered "
                                    "view before its normals and descriptors are computed, so that they look like "
                                    "a real sensor's (0: clean views)")
 

@@ -46,6 +46,9 @@ class RansacConfig:
     alternatives: int = param(4, "extra distinct poses kept per round for verification to choose from")
     rescore: int = param(20, "best triplet poses refit and re-ranked by geometric overlap with the scene "
                              "(0: off)")
+    rescore_wide: int = param(100, "with rescore: this many best triplet poses are refit and ranked by overlap, "
+                                   "and the wide_extra best of those beyond the first rescore are kept too")
+    wide_extra: int = param(2, "extra distinct poses taken from the wider rescore pool (0: off)")
     min_normal_spread_deg: float = param(15.0, "a triplet needs a normal this far from the others (0: off)")
     guided: float = param(2.0, "seed edges are drawn with weight (1 + common compatible neighbours)^guided "
                                "(second-order compatibility: correct matches agree with each other); 0: seeds "
@@ -53,7 +56,7 @@ class RansacConfig:
 
     def __post_init__(self):
         check_positive(self, "iterations", "edge_tolerance", "normal_tolerance_deg", "max_instances")
-        for n in ("alternatives", "rescore", "min_normal_spread_deg", "guided"):
+        for n in ("alternatives", "rescore", "rescore_wide", "wide_extra", "min_normal_spread_deg", "guided"):
             if getattr(self, n) < 0:
                 raise ConfigError(f"RansacConfig.{n} must be >= 0, got {getattr(self, n)}")
 
@@ -89,7 +92,8 @@ class RansacGrouper:
         cn = np.repeat(scene.normals, k, axis=0)
         overlap = None
         if scene.cloud_tree is not None and c.rescore > 0:
-            overlap = Overlap(model.icp_points, model.icp_normals, scene.cloud_tree,
+            step = -(-len(model.icp_points) // 300)  # a few hundred samples rank poses as well as all of them
+            overlap = Overlap(model.icp_points[::step], model.icp_normals[::step], scene.cloud_tree,
                               0.75 * self.common.inlier_distance)
         graph = _Graph(cs, cm, cn, k, start, deg, nbr, *(_second_order(start, deg, nbr) if c.guided > 0
                                                           else (None, None)))
@@ -168,7 +172,7 @@ class RansacGrouper:
             score = np.bincount(np.unique(key) // n_s, minlength=len(tri))
         order = np.lexsort((np.arange(len(tri)), -score))  # best first, ties by draw order: deterministic
         order = order[score[order] + 3 >= min_inl]
-        limit = c.rescore if overlap is not None else c.alternatives + 1
+        limit = max(c.rescore, c.rescore_wide) if overlap is not None else c.alternatives + 1
         lead = distinct_poses(T, order, diameter, limit)
         if len(lead) == 0:
             return []
@@ -177,11 +181,18 @@ class RansacGrouper:
         keep = np.flatnonzero(n_pts >= min_inl)
         if len(keep) == 0:
             return []
-        if overlap is not None and len(keep) > 1:
-            lcp = np.array([overlap(Tr[i]) for i in keep])
-            keep = keep[np.lexsort((keep, -lcp))]
-        keep = distinct_poses(Tr, keep, diameter, c.alternatives + 1)
-        return [(Tr[i], pool[inls[i]]) for i in keep]
+        if overlap is None or len(keep) == 1:
+            keep = distinct_poses(Tr, keep, diameter, c.alternatives + 1)
+            return [(Tr[i], pool[inls[i]]) for i in keep]
+        lcp = overlap(Tr[keep])
+        ranked = keep[np.lexsort((keep, -lcp))]  # all refit poses, most overlap first
+        first = distinct_poses(Tr, ranked[ranked < c.rescore], diameter, c.alternatives + 1)
+        if c.wide_extra > 0 and len(ranked) > len(first):
+            # a few more from the wider pool: on near-symmetric parts the triplet counts cannot tell the
+            # rotations apart, and the right one may rank below the first ``rescore``
+            both = np.concatenate([first, ranked])
+            first = distinct_poses(Tr, both, diameter, len(first) + c.wide_extra)
+        return [(Tr[i], pool[inls[i]]) for i in first]
 
 
     def _guided_triangles(self, g: "_Graph", active: np.ndarray, rng: np.random.Generator):
@@ -260,9 +271,10 @@ class Overlap:
     scene_tree: cKDTree
     distance: float
 
-    def __call__(self, T: np.ndarray) -> int:
-        P = transform(T, self.points)
-        front = ((self.normals @ T[:3, :3].T) * P).sum(axis=1) < 0
+    def __call__(self, T: np.ndarray) -> np.ndarray:
+        """(B,) overlap of each of B poses T (B, 4, 4) (model to camera)."""
+        P = np.matmul(self.points, T[:, :3, :3].transpose(0, 2, 1)) + T[:, None, :3, 3]  # (B, P, 3)
+        N = np.matmul(self.normals, T[:, :3, :3].transpose(0, 2, 1))
+        front = np.einsum("bpi,bpi->bp", N, P) < 0
         d, _ = self.scene_tree.query(P[front], distance_upper_bound=self.distance)
-        return int(np.isfinite(d).sum())
-
+        return np.bincount(np.nonzero(front)[0][np.isfinite(d)], minlength=len(T))
