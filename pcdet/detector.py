@@ -233,7 +233,8 @@ class Detector:
                 has = (rows.model >= 0).any(axis=1)
                 if not has.all():  # keypoints left without a candidate (by colour) take no part in grouping
                     view, rows = view.subset(has), Candidates(rows.model[has], rows.distance[has])
-                return self.grouper.group(view, pm, rows, np.random.default_rng(seeds[pm.index]))
+                return self.grouper.group(view, pm, rows, np.random.default_rng(seeds[pm.index]),
+                                          workers=max(1, self.workers // len(models)))
 
             return [h for hs in self._map(group, models) for h in hs]
 

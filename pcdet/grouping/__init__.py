@@ -35,9 +35,10 @@ class Grouper(Protocol):
     def __init__(self, cfg: GroupingConfig): ...
 
     def group(self, scene: "SceneKeypoints", model: "PreparedModel", candidates: "Candidates",
-              rng: np.random.Generator) -> list[Hypothesis]:
+              rng: np.random.Generator, *, workers: int = 1) -> list[Hypothesis]:
         """Pose hypotheses of ``model`` in ``scene`` from ``candidates`` (rows aligned with ``scene``'s
-        keypoints); ``rng`` is the only source of randomness."""
+        keypoints); ``rng`` is the only source of randomness; ``workers``: threads it may use (the result is
+        the same for any number)."""
 
 
 GROUPERS: dict[str, type] = {

@@ -13,7 +13,7 @@ from ..pairs import ScenePairs, pair_features
 
 
 def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarray, model_nrm: np.ndarray, *,
-                        diameter: float, edge_tolerance: float, normal_tolerance_deg: float
+                        diameter: float, edge_tolerance: float, normal_tolerance_deg: float, workers: int = 1
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """CSR ``(start, deg, nbr)`` over correspondences: two are compatible when their scene pair and their model
     pair have the same point-pair feature (lengths within ``edge_tolerance`` m, the three angles within
@@ -22,6 +22,7 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
 
     cand : (S, k) int64 model keypoint of each candidate, -1 where there is none.
     model_pts, model_nrm : (K, 3) model keypoints and normals.
+    workers : threads that test the candidate pairs (the graph is the same for any number).
     """
     S, k = cand.shape
     M = S * k
@@ -34,8 +35,8 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
     flat = cand.reshape(-1)
     lo2 = np.maximum(fs[:, 0] - edge_tolerance, 0) ** 2  # squared bounds: no square root per candidate pair
     hi2 = (fs[:, 0] + edge_tolerance) ** 2
-    ca_parts, cb_parts = [], []
-    for pair, ia, ib in _candidate_pairs(a, b, cand):
+    def test(part):
+        pair, ia, ib = part
         ma, mb = flat[ia], flat[ib]
         dv = mp[mb] - mp[ma]
         l2 = np.einsum("ij,ij->i", dv, dv)
@@ -45,8 +46,18 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
         fm = pair_features(mp[ma], mn[ma], mp[mb], mn[mb])
         d = np.abs(fs[pair[sel], 1:] - fm[:, 1:])
         keep = sel[(d[:, 0] < tol) & (d[:, 1] < tol) & (d[:, 2] < tol)]
-        ca_parts.append(ia[keep])
-        cb_parts.append(ib[keep])
+        return ia[keep], ib[keep]
+
+    parts = _candidate_pairs(a, b, cand)
+    if workers > 1:  # the chunks are independent; their results are joined in order, so the graph is the same
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(workers) as pool:
+            found = list(pool.map(test, parts))
+    else:
+        found = [test(p) for p in parts]
+    ca_parts = [x for x, _ in found]
+    cb_parts = [y for _, y in found]
     ca = np.concatenate(ca_parts) if ca_parts else np.zeros(0, np.int64)
     cb = np.concatenate(cb_parts) if cb_parts else np.zeros(0, np.int64)
     src = np.concatenate([ca, cb])

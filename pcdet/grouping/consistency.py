@@ -50,7 +50,7 @@ class ConsistencyGrouper:
         self.common, self.cfg = cfg, cfg.gc
 
     def group(self, scene: "SceneKeypoints", model: "PreparedModel", candidates: Candidates,
-              rng: np.random.Generator) -> list[Hypothesis]:
+              rng: np.random.Generator, *, workers: int = 1) -> list[Hypothesis]:
         """Hypotheses from the consistent groups of ``candidates`` (see the module docstring)."""
         m, c, min_inl = model.model, self.cfg, self.common.min_inliers
         cand = candidates.model
@@ -62,7 +62,7 @@ class ConsistencyGrouper:
                              lambda: scene_pairs(scene.points, scene.normals, scene.labels, m.diameter))
         start, deg, nbr = compatibility_graph(pairs, cand, m.kp_points, m.kp_normals, diameter=m.diameter,
                                               edge_tolerance=c.edge_tolerance,
-                                              normal_tolerance_deg=c.normal_tolerance_deg)
+                                              normal_tolerance_deg=c.normal_tolerance_deg, workers=workers)
         cs, cm = correspondence_points(scene.points, cand, m.kp_points)
         valid = (cand.reshape(-1) >= 0) & (deg >= min_inl - 1)
         rank = np.empty(M, np.int64)

@@ -54,7 +54,7 @@ class HoughGrouper:
         self.common, self.cfg = cfg, cfg.hough
 
     def group(self, scene: "SceneKeypoints", model: "PreparedModel", candidates: Candidates,
-              rng: np.random.Generator) -> list[Hypothesis]:
+              rng: np.random.Generator, *, workers: int = 1) -> list[Hypothesis]:
         """Hypotheses from the vote peaks of ``candidates`` (see the module docstring); needs ``scene.lrfs``."""
         m, c, min_inl = model.model, self.cfg, self.common.min_inliers
         cand = candidates.model

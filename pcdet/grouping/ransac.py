@@ -74,7 +74,7 @@ class RansacGrouper:
         self.common, self.cfg = cfg, cfg.ransac
 
     def group(self, scene: "SceneKeypoints", model: "PreparedModel", candidates: Candidates,
-              rng: np.random.Generator) -> list[Hypothesis]:
+              rng: np.random.Generator, *, workers: int = 1) -> list[Hypothesis]:
         """Hypotheses for up to ``max_instances`` instances of ``model`` per scene cluster; ``rng`` draws the
         triplets."""
         m, c = model.model, self.cfg
@@ -87,7 +87,7 @@ class RansacGrouper:
                              lambda: scene_pairs(scene.points, scene.normals, scene.labels, m.diameter))
         start, deg, nbr = compatibility_graph(pairs, cand, m.kp_points, m.kp_normals, diameter=m.diameter,
                                               edge_tolerance=c.edge_tolerance,
-                                              normal_tolerance_deg=c.normal_tolerance_deg)
+                                              normal_tolerance_deg=c.normal_tolerance_deg, workers=workers)
         cs, cm = correspondence_points(scene.points, cand, m.kp_points)
         cn = np.repeat(scene.normals, k, axis=0)
         overlap = None
