@@ -26,7 +26,7 @@ from .grouping import Hypothesis, make_grouper
 from .grouping.common import distinct_poses
 from .keypoints import select_keypoints
 from .library import ModelLibrary
-from .matching import Candidates, match_features
+from .matching import Candidates, LibraryIndex, match_features, match_library
 from .prepared_model import PreparedModel
 from .preprocess import preprocess
 from .refine import RefineConfig, RegistrationResult, icp
@@ -158,6 +158,7 @@ class Detector:
         self.grouper = make_grouper(self.config.grouping)
         icp_spacing = 2 * self.config.preprocess.voxel
         self.models = [PreparedModel.build(m, i, icp_spacing=icp_spacing) for i, m in enumerate(library)]
+        self._indexes: dict[tuple[int, ...], LibraryIndex] = {}
 
     def __repr__(self) -> str:
         return (f"Detector({len(self.library)} models, grouping={self.config.grouping.method!r}, "
@@ -211,11 +212,18 @@ class Detector:
         cfg = self.config
         seeds = np.random.SeedSequence(cfg.seed).spawn(len(self.library))
         spacing = self.keypoint_spacing(models) if cfg.keypoints.method == "voxel" else cfg.keypoints.spacing
+        mc = cfg.matching
         with tm("matching"):
-            cands = {pm.index: match_features(scene.descriptors, pm.model.features, cfg.matching,
-                                              model_tree=pm.descriptor_tree, workers=self.workers,
-                                              scene_colours=scene.colours, model_colours=pm.colours)
-                     for pm in models}
+            if len(models) > 1 and mc.library_pool > 0 and mc.ratio >= 1 and not mc.mutual:
+                # one search over the library: a model gets candidates only where the scene resembles it
+                found = match_library(scene.descriptors, self._library_index(models), mc, workers=self.workers,
+                                      scene_colours=scene.colours)
+                cands = {pm.index: c for pm, c in zip(models, found)}
+            else:
+                cands = {pm.index: match_features(scene.descriptors, pm.model.features, mc,
+                                                  model_tree=pm.descriptor_tree, workers=self.workers,
+                                                  scene_colours=scene.colours, model_colours=pm.colours)
+                         for pm in models}
         if self.grouper.needs_lrfs:
             with tm("lrf"):  # only keypoints with a candidate take part in grouping
                 used = np.zeros(len(scene.keypoints), bool)
@@ -237,6 +245,14 @@ class Detector:
                                           workers=max(1, self.workers // len(models)))
 
             return [h for hs in self._map(group, models) for h in hs]
+
+    def _library_index(self, models: list[PreparedModel]) -> LibraryIndex:
+        """The descriptor index over ``models``, built on first use for each set of models searched."""
+        key = tuple(pm.index for pm in models)
+        if key not in self._indexes:
+            self._indexes[key] = LibraryIndex.build([pm.model.features for pm in models],
+                                                    [pm.colours for pm in models])
+        return self._indexes[key]
 
     def _select_global(self, scene: Scene, order, hyps, regs, vers) -> list[int]:
         """The subset of ``order`` (indices of accepted hypotheses) that best explains the scene

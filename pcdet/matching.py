@@ -22,9 +22,14 @@ class MatchingConfig:
                                      "(3 (r, g) / (r + g + b); grey is (1, 1)); 0: colour unused")
     colour_pool: int = param(16, "with colour: the k candidates are the first that pass the gate among this many "
                                  "nearest in FPFH space")
+    library_pool: int = param(0, "when several models are searched: one descriptor index over all of them, and "
+                                  "each model's candidates are its first k among this many nearest over the "
+                                  "library (0: each model matched on its own)")
 
     def __post_init__(self):
         check_positive(self, "k", "colour_pool")
+        if self.library_pool < 0:
+            raise ConfigError(f"MatchingConfig.library_pool must be >= 0 (0: per model), got {self.library_pool}")
         if self.colour_gate < 0:
             raise ConfigError(f"MatchingConfig.colour_gate must be >= 0 (0 disables it), got {self.colour_gate}")
         if not 0 < self.ratio <= 1:
@@ -104,3 +109,54 @@ def _colour_gate(dist: np.ndarray, idx: np.ndarray, scene_colours: np.ndarray, m
     out_idx = np.where(keep, np.take_along_axis(idx, order, axis=1), -1)
     out_dist = np.where(keep, np.take_along_axis(dist, order, axis=1), np.inf)
     return out_dist, out_idx
+
+
+@dataclass
+class LibraryIndex:
+    """One descriptor index over several models: the KD-tree of their features stacked (D, 33), and for each
+    row its model (position in the list it was built from) and its keypoint index within that model.
+    colours : (D, 2) chromaticity per row (NaN where the model has none), or None when no model has colour."""
+
+    tree: cKDTree
+    owner: np.ndarray
+    local: np.ndarray
+    n_models: int
+    colours: np.ndarray | None
+
+    @classmethod
+    def build(cls, features: list[np.ndarray], colours: list[np.ndarray | None]) -> "LibraryIndex":
+        owner = np.concatenate([np.full(len(f), i, np.int64) for i, f in enumerate(features)])
+        local = np.concatenate([np.arange(len(f), dtype=np.int64) for f in features])
+        col = None
+        if any(c is not None for c in colours):
+            col = np.concatenate([c if c is not None else np.full((len(f), 2), np.nan)
+                                  for f, c in zip(features, colours)])
+        return cls(cKDTree(np.concatenate(features)), owner, local, len(features), col)
+
+
+def match_library(scene_features: np.ndarray, index: LibraryIndex, cfg: MatchingConfig, *, workers: int = 1,
+                  scene_colours: np.ndarray | None = None) -> list[Candidates]:
+    """Candidates for every model of ``index`` from one search: each scene descriptor (S, 33) takes its
+    ``cfg.library_pool`` nearest over the whole library; each model's candidates are its first ``cfg.k`` among
+    them (with colour, the first that pass ``cfg.colour_gate``). A model far from a scene keypoint in FPFH space
+    gets no candidate there, so the grouping work follows the models the scene resembles, not the library's
+    size. Returns one ``Candidates`` (S, k) per model, in the index's order."""
+    S, D = len(scene_features), len(index.owner)
+    if S == 0 or D == 0:
+        return [Candidates(np.full((S, 1), -1, np.int64), np.full((S, 1), np.inf)) for _ in range(index.n_models)]
+    L = min(max(cfg.library_pool, cfg.k), D)
+    dist, idx = index.tree.query(scene_features, k=L, workers=workers)  # exact search: same on any thread count
+    dist, idx = dist.reshape(S, L), idx.reshape(S, L).astype(np.int64)
+    ok = np.ones((S, L), bool)
+    if cfg.colour_gate > 0 and scene_colours is not None and index.colours is not None:
+        ok = ~(np.linalg.norm(scene_colours[:, None, :] - index.colours[idx], axis=2) > cfg.colour_gate)
+    own = index.owner[idx]
+    k = min(cfg.k, L)
+    out = []
+    for m in range(index.n_models):
+        sel = ok & (own == m)
+        order = np.argsort(~sel, axis=1, kind="stable")[:, :k]  # this model's passing candidates, nearest first
+        keep = np.take_along_axis(sel, order, axis=1)
+        out.append(Candidates(np.where(keep, index.local[np.take_along_axis(idx, order, axis=1)], -1),
+                              np.where(keep, np.take_along_axis(dist, order, axis=1), np.inf)))
+    return out

@@ -64,3 +64,32 @@ def test_colour_gate_leaves_a_keypoint_of_a_colour_the_model_lacks_without_candi
     c = match_features(scene, model, MatchingConfig(k=3, colour_gate=0.25, colour_pool=30), scene_colours=scol,
                        model_colours=mcol)
     assert (c.model[0] >= 0).all() and (c.model[1] == -1).all() and np.isinf(c.distance[1]).all()
+
+
+def test_library_index_with_one_model_matches_like_the_per_model_search():
+    """One model in the index: the same candidates, in the same order, as ``match_features``."""
+    from pcdet.matching import LibraryIndex, match_library
+
+    rng = np.random.default_rng(3)
+    model, scene = rng.random((600, 33)), rng.random((150, 33))
+    (one,) = match_library(scene, LibraryIndex.build([model], [None]), MatchingConfig(k=8))
+    ref = match_features(scene, model, MatchingConfig(k=8))
+    np.testing.assert_array_equal(one.model, ref.model)
+    np.testing.assert_allclose(one.distance, ref.distance)
+
+
+def test_library_index_gives_candidates_to_the_models_the_scene_resembles():
+    """Scene descriptors copied (plus tiny noise) from model A's: with a pool of 16 over A and two unrelated
+    models, every scene keypoint's first candidate is its source row of A, A gets the full k = 4, and the
+    unrelated models (their descriptors far away in FPFH space) get no candidate at all."""
+    from pcdet.matching import LibraryIndex, match_library
+
+    rng = np.random.default_rng(4)
+    a = rng.random((400, 33))
+    others = [rng.random((400, 33)) + 5.0, rng.random((400, 33)) - 5.0]
+    src = rng.choice(400, 100, replace=False)
+    scene = a[src] + rng.normal(0, 1e-4, (100, 33))
+    ca, cb, cc = match_library(scene, LibraryIndex.build([a, *others], [None, None, None]),
+                               MatchingConfig(k=4, library_pool=16))
+    assert (ca.model[:, 0] == src).all() and (ca.model >= 0).all()
+    assert (cb.model < 0).all() and (cc.model < 0).all()

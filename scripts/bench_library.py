@@ -1,0 +1,118 @@
+"""Library scale: the cost of a frame with 8 models against 40 (the 8 and four look-alike scaled copies of each).
+
+The 8 models: the LINEMOD cat (its textured mesh, obj 6), the six parts of ``models/`` (obj 11-16) and the
+Stanford bunny (obj 17, millimetres). The 40: the same and, for each, copies scaled by 0.85, 0.92, 1.08 and 1.15
+(obj 100 + id, 200 + id, ...). Frames: real LINEMOD cat frames, no targets (the whole library is searched).
+Only the cat is in the library and in view, so a detection is correct when it is the cat within ADD 0.1 d;
+every other detection (another model, a scaled cat, a cat elsewhere) is a false positive.
+
+Prints per library: recall (frames whose cat is found), precision (correct detections / all), median seconds
+per frame, and the 40 / 8 time ratio.
+
+Run:  python scripts/bench_library.py [--data ../shared/data/linemod_cat] [--frames 20] [--pipeline default]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from pcdet.config import load_pipeline
+from pcdet.datasets import open_recording
+from pcdet.detector import Detector
+from pcdet.library import ModelLibrary
+from pcdet.metrics import add
+
+ROOT = Path(__file__).resolve().parent.parent
+SCALES = (0.85, 0.92, 1.08, 1.15)
+
+
+def _write(mesh: trimesh.Trimesh, folder: Path, obj_id: int, name: str, info: dict) -> None:
+    mesh.export(folder / f"obj_{obj_id:06d}.ply")
+    info[str(obj_id)] = {"name": name, "diameter": float(np.linalg.norm(np.ptp(mesh.vertices, axis=0)))}
+
+
+def build_libraries(data: Path, out: Path) -> tuple[Path, Path]:
+    """Two BOP model folders under ``out``: ``lib8`` and ``lib40`` (see the module docstring)."""
+    base: list[tuple[int, str, trimesh.Trimesh]] = []
+    base.append((6, "cat", trimesh.load(data / "models" / "obj_000006.ply", process=False)))
+    info = json.loads((ROOT / "models" / "models_info.json").read_text())
+    for i in range(1, 7):
+        name = info[str(i)].get("name", f"part{i}")
+        base.append((10 + i, name, trimesh.load(ROOT / "models" / f"obj_{i:06d}.ply", process=False)))
+    bunny = trimesh.load(data.parent / "bunny" / "bun_zipper_res3.ply", process=False)
+    bunny.apply_scale(1000.0)  # metres -> millimetres, as BOP model folders are read
+    base.append((17, "bunny", bunny))
+    libs = []
+    for name, scales in (("lib8", ()), ("lib40", SCALES)):
+        folder = out / name
+        folder.mkdir(parents=True)
+        meta: dict = {}
+        for obj_id, label, mesh in base:
+            _write(mesh, folder, obj_id, label, meta)
+            for n, s in enumerate(scales, start=1):
+                copy = mesh.copy()
+                copy.apply_scale(s)
+                _write(copy, folder, 100 * n + obj_id, f"{label}x{s:.2f}", meta)
+        (folder / "models_info.json").write_text(json.dumps(meta, indent=1))
+        libs.append(folder)
+    return libs[0], libs[1]
+
+
+def run(folder: Path, rec, refs, pipeline: str) -> dict:
+    cfg = load_pipeline(pipeline)
+    t0 = time.perf_counter()
+    lib = ModelLibrary.from_folder(folder, cfg)
+    build = time.perf_counter() - t0
+    det = Detector(lib, cfg)
+    cat = lib[lib.index_of(6)]
+    times, found, correct, total = [], 0, 0, 0
+    for ref in refs:
+        frame = rec.frame(ref)
+        T_gt = next(g["T_cam_model"] for g in rec.gt(ref) if g["obj_id"] == 6)
+        t = time.perf_counter()
+        res = det.detect(frame)
+        times.append(time.perf_counter() - t)
+        ok = [d.obj_id == 6 and add(d.T_cam_model, T_gt, cat.points) < 0.1 * cat.diameter for d in res.detections]
+        found += any(ok)
+        correct += sum(ok)
+        total += len(res.detections)
+    return {"models": len(lib), "recall": found / len(refs), "precision": correct / max(total, 1),
+            "detections": total, "median_s": float(np.median(times)), "build_s": build}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data" / "linemod_cat")
+    ap.add_argument("--frames", type=int, default=20, help="first N frames (0: all)")
+    ap.add_argument("--pipeline", default="default")
+    args = ap.parse_args()
+    rec = open_recording(args.data)
+    refs = list(rec)
+    refs = refs[: args.frames] if args.frames > 0 else refs
+    tmp = Path(tempfile.mkdtemp(prefix="pcdet-lib-"))
+    try:
+        lib8, lib40 = build_libraries(args.data, tmp)
+        rows = []
+        for folder in (lib8, lib40):
+            rows.append(run(folder, rec, refs, args.pipeline))
+            print(f"{rows[-1]['models']} models: recall {rows[-1]['recall']:.3f}, precision "
+                  f"{rows[-1]['precision']:.3f}, median {rows[-1]['median_s']:.2f} s/frame", flush=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    print(f"\n{len(refs)} real frames of {args.data.name}, no targets, pipeline {args.pipeline}\n")
+    print("| models | recall | precision | detections | median s/frame | time / 8 models | model build s |")
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['models']} | {r['recall']:.3f} | {r['precision']:.3f} | {r['detections']} | "
+              f"{r['median_s']:.2f} | {r['median_s'] / rows[0]['median_s']:.2f}x | {r['build_s']:.0f} |")
+
+
+if __name__ == "__main__":
+    main()
