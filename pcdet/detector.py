@@ -207,8 +207,9 @@ class Detector:
 
     def _hypotheses(self, scene: Scene, models: list[PreparedModel], tm: _Timer, trace: Trace | None = None
                     ) -> list[Hypothesis]:
-        """Match the scene's keypoints against each model and group the candidates into pose hypotheses, one
-        model per thread, each with its own generator (so neither order nor threads change the result)."""
+        """Match the scene's keypoints against each model (or, with ``matching.library_pool``, against one index
+        over all of them) and group the candidates into pose hypotheses, one model per thread, each with its own
+        generator (so neither order nor threads change the result)."""
         cfg = self.config
         seeds = np.random.SeedSequence(cfg.seed).spawn(len(self.library))
         spacing = self.keypoint_spacing(models) if cfg.keypoints.method == "voxel" else cfg.keypoints.spacing

@@ -103,12 +103,16 @@ def _colour_gate(dist: np.ndarray, idx: np.ndarray, scene_colours: np.ndarray, m
     """Of each row's candidates (S, pool), nearest first, the first ``k`` whose chromaticity is within ``gate``
     of the scene keypoint's (unknown colours pass), as (S, k) tables (-1 / inf where fewer pass)."""
     diff = np.linalg.norm(scene_colours[:, None, :] - model_colours[idx], axis=2)
-    ok = ~(diff > gate)  # NaN (unknown colour) passes
+    return _first_passing(~(diff > gate), dist, idx, k)  # NaN (unknown colour) passes
+
+
+def _first_passing(ok: np.ndarray, dist: np.ndarray, idx: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Of each row of (S, pool) candidates, nearest first, the first ``k`` where ``ok``, as (S, k) distance and
+    index tables (inf / -1 where fewer pass)."""
     order = np.argsort(~ok, axis=1, kind="stable")[:, :k]  # passing candidates first, in FPFH order
     keep = np.take_along_axis(ok, order, axis=1)
-    out_idx = np.where(keep, np.take_along_axis(idx, order, axis=1), -1)
-    out_dist = np.where(keep, np.take_along_axis(dist, order, axis=1), np.inf)
-    return out_dist, out_idx
+    return (np.where(keep, np.take_along_axis(dist, order, axis=1), np.inf),
+            np.where(keep, np.take_along_axis(idx, order, axis=1), -1))
 
 
 @dataclass
@@ -154,9 +158,6 @@ def match_library(scene_features: np.ndarray, index: LibraryIndex, cfg: Matching
     k = min(cfg.k, L)
     out = []
     for m in range(index.n_models):
-        sel = ok & (own == m)
-        order = np.argsort(~sel, axis=1, kind="stable")[:, :k]  # this model's passing candidates, nearest first
-        keep = np.take_along_axis(sel, order, axis=1)
-        out.append(Candidates(np.where(keep, index.local[np.take_along_axis(idx, order, axis=1)], -1),
-                              np.where(keep, np.take_along_axis(dist, order, axis=1), np.inf)))
+        d, i = _first_passing(ok & (own == m), dist, idx, k)  # this model's passing candidates, nearest first
+        out.append(Candidates(np.where(i >= 0, index.local[np.maximum(i, 0)], -1), d))
     return out
