@@ -129,6 +129,8 @@ class LibraryIndex:
 
     @classmethod
     def build(cls, features: list[np.ndarray], colours: list[np.ndarray | None]) -> "LibraryIndex":
+        """The index over models given by their descriptors (each (D_i, 33)) and keypoint colours (each (D_i, 2)
+        chromaticity, or None), in the order the candidates are returned."""
         owner = np.concatenate([np.full(len(f), i, np.int64) for i, f in enumerate(features)])
         local = np.concatenate([np.arange(len(f), dtype=np.int64) for f in features])
         col = None
