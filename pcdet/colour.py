@@ -33,11 +33,9 @@ def image_colours(points: np.ndarray, camera: Camera, rgb: np.ndarray, *, window
     front = pts[:, 2] > 1e-6
     if not front.any():
         return out
-    p = pts[front]
-    u = np.round(p[:, 0] / p[:, 2] * camera.fx + camera.cx).astype(np.int64)
-    v = np.round(p[:, 1] / p[:, 2] * camera.fy + camera.cy).astype(np.int64)
+    u, v = np.round(camera.project(pts[front])).astype(np.int64).T
     h, w = rgb.shape[:2]
-    acc = np.zeros((len(p), 3))
+    acc = np.zeros((len(u), 3))
     for dv in range(-window, window + 1):
         for du in range(-window, window + 1):
             acc += rgb[np.clip(v + dv, 0, h - 1), np.clip(u + du, 0, w - 1)]
