@@ -2,7 +2,14 @@
 import numpy as np
 import pytest
 
-from pcdet.cloud import euclidean_clusters, segment_plane, voxel_downsample
+from pcdet.cloud import (
+    estimate_normals,
+    euclidean_clusters,
+    orient_along_surface,
+    outward_normals,
+    segment_plane,
+    voxel_downsample,
+)
 
 
 def test_voxel_grid_means_and_representatives(rng):
@@ -49,3 +56,29 @@ def test_voxel_grid_normals_are_unit(rng, voxel):
     _, n, _ = voxel_downsample(pts, voxel, nrm)
     ok = np.linalg.norm(n, axis=1) > 0
     np.testing.assert_allclose(np.linalg.norm(n[ok], axis=1), 1, atol=1e-9)
+
+
+def test_orientation_agrees_along_a_wavy_surface_split_in_two(rng):
+    """A wavy sheet (z = 0.05 sin(20 x)) on a 1 cm grid, cut by a 5 cm gap that the 10-neighbour graph does not
+    cross, with every normal's sign drawn at random: after ``orient_along_surface`` all normals agree with the
+    true ones up to one global sign (the piece across the gap takes the sign of its nearest neighbour)."""
+    x, y = np.meshgrid(np.arange(0, 0.6, 0.01), np.arange(0, 0.3, 0.01))
+    x, y = x.ravel(), y.ravel()
+    keep = (x < 0.28) | (x > 0.33)
+    x, y = x[keep], y[keep]
+    pts = np.stack([x, y, 0.05 * np.sin(20 * x)], axis=1)
+    true = np.stack([-np.cos(20 * x), np.zeros_like(x), np.ones_like(x)], axis=1)
+    true /= np.linalg.norm(true, axis=1, keepdims=True)
+    flipped = true * rng.choice([-1.0, 1.0], len(true))[:, None]
+    agree = (orient_along_surface(pts, flipped) * true).sum(axis=1)
+    assert (agree > 0.99).all() or (agree < -0.99).all()
+
+
+def test_outward_normals_point_away_from_the_centre_of_a_sphere(rng):
+    """Normals estimated on a noisy unit-sphere sample (2000 points) all point outward (cosine > 0.9)."""
+    d = rng.normal(size=(2000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    pts = d * (1 + rng.normal(0, 0.002, (2000, 1)))
+    n = outward_normals(pts, 0.15, 30)
+    assert ((n * d).sum(axis=1) > 0.9).all()
+    assert np.allclose(np.abs(estimate_normals(pts, 0.15, 30, viewpoint=None)), np.abs(n))
