@@ -15,13 +15,14 @@ from scipy.spatial import cKDTree
 def pair_features(p1, n1, p2, n2) -> np.ndarray:
     """(..., 4) float32 features of pairs given as (..., 3) arrays: length (m) and three angles (rad)."""
     d = p2 - p1
-    length = np.linalg.norm(d, axis=-1)
-    u = d / np.maximum(length, 1e-12)[..., None]
-    f = np.stack([length,
-                  np.arccos(np.clip((n1 * u).sum(-1), -1, 1)),
-                  np.arccos(np.clip((n2 * u).sum(-1), -1, 1)),
-                  np.arccos(np.clip((n1 * n2).sum(-1), -1, 1))], axis=-1)
-    return f.astype(np.float32)
+    length = np.sqrt(np.einsum("...i,...i->...", d, d))
+    inv = 1.0 / np.maximum(length, 1e-12)
+    f = np.empty(length.shape + (4,), np.float32)
+    f[..., 0] = length
+    f[..., 1] = np.arccos(np.clip(np.einsum("...i,...i->...", n1, d) * inv, -1, 1))
+    f[..., 2] = np.arccos(np.clip(np.einsum("...i,...i->...", n2, d) * inv, -1, 1))
+    f[..., 3] = np.arccos(np.clip(np.einsum("...i,...i->...", n1, n2), -1, 1))
+    return f
 
 
 @dataclass
@@ -36,12 +37,17 @@ class ScenePairs:
 
 def scene_pairs(points, normals, labels, radius: float) -> ScenePairs:
     """Pairs of scene keypoints (points, normals (S, 3), labels (S,)) within ``radius`` (m)."""
-    pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
-    if len(pairs) == 0:
+    points = np.asarray(points, float)
+    extent = np.ptp(points, axis=0) if len(points) else np.zeros(3)
+    if np.linalg.norm(extent) <= radius:  # every pair is within reach (a whole scan in registration, say)
+        a, b = np.triu_indices(len(points), 1)
+    else:
+        pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
+        pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]  # query_pairs gives no order
+        a, b = pairs[:, 0], pairs[:, 1]
+    if len(a) == 0:
         z = np.zeros(0, np.int64)
         return ScenePairs(z, z, np.zeros((0, 4), np.float32))
-    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]  # query_pairs' order is not specified
-    a, b = pairs[:, 0], pairs[:, 1]
     keep = labels[a] == labels[b]
     a, b = a[keep], b[keep]
     return ScenePairs(a, b, pair_features(points[a], normals[a], points[b], normals[b]))

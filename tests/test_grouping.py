@@ -197,3 +197,25 @@ def test_refit_batch_pulls_poses_onto_their_inliers_and_ignores_far_matches(rng)
         assert np.linalg.norm(E[:3, 3] - T[:3, 3]) < 0.001
         assert rotation_error_deg(E[:3, :3], T[:3, :3]) < 0.5
         assert np.isin(np.arange(200), inl).all() and np.isin(wrong, inl).sum() <= 40
+
+
+def test_scene_pairs_are_the_same_when_every_pair_is_within_reach(rng):
+    """``scene_pairs`` takes every pair at once when the radius covers the points' extent: the pairs (a < b, sorted)
+    and their features equal those the KD-tree search gives for a radius a hair below the extent."""
+    from pcdet.pairs import scene_pairs
+
+    pts = rng.uniform(0, 0.1, (200, 3))
+    nrm = rng.normal(size=(200, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    labels = np.zeros(200, np.int64)
+    reach = float(np.linalg.norm(np.ptp(pts, axis=0)))
+    every = scene_pairs(pts, nrm, labels, reach)
+    searched = scene_pairs(pts, nrm, labels, reach * (1 - 1e-9))
+    assert len(every.a) == 200 * 199 // 2
+    # the farthest pair may fall just outside the smaller radius: compare on the pairs the search found
+    found = {(a, b) for a, b in zip(searched.a, searched.b)}
+    mask = np.array([(a, b) in found for a, b in zip(every.a, every.b)])
+    assert mask.sum() >= len(every.a) - 1
+    np.testing.assert_array_equal(every.a[mask], searched.a)
+    np.testing.assert_array_equal(every.b[mask], searched.b)
+    np.testing.assert_array_equal(every.features[mask], searched.features)
