@@ -48,8 +48,11 @@ class RegistrationResult:
 
 def icp(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_init: np.ndarray,
         cfg: RefineConfig, *, source_normals: np.ndarray | None = None, target_tree: cKDTree | None = None,
-        viewpoint: np.ndarray | None = None) -> RegistrationResult:
+        viewpoint: np.ndarray | None = None, tolerance: tuple[float, float] = (1e-5, 1e-6)) -> RegistrationResult:
     """Point-to-plane ICP of ``source`` (N, 3) onto ``target`` (M, 3) with ``target_normals`` (M, 3).
+
+    It stops after ``cfg.iterations`` or once a step turns less than ``tolerance[0]`` (rad) and moves less than
+    ``tolerance[1]`` (m).
 
     With ``source_normals`` and a ``viewpoint`` (target frame, e.g. the camera origin), only source points whose
     normals face the viewpoint take part, as only they can have been seen.
@@ -74,7 +77,7 @@ def icp(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_in
         dT[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
         dT[:3, 3] = x[3:]
         T = dT @ T
-        if np.linalg.norm(x[:3]) < 1e-5 and np.linalg.norm(x[3:]) < 1e-6:
+        if np.linalg.norm(x[:3]) < tolerance[0] and np.linalg.norm(x[3:]) < tolerance[1]:
             converged = True
             break
     p, q, n, w, n_src = _pairs(source, source_normals, target, target_normals, tree, T, cfg=cfg, viewpoint=viewpoint)
