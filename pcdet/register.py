@@ -44,7 +44,8 @@ class RegistrationWarning(UserWarning):
 @dataclass(frozen=True)
 class RegisterConfig:
     """voxel: sampling of both inputs (m; None: 1/40 of the source's diameter); the rest scale with it.
-    k: FPFH candidates per target keypoint (None: 1 for RANSAC, 3 for the other groupers). Measured with
+    k: FPFH candidates per target keypoint (None: 1 for RANSAC, and 3 if that finds no consistent alignment;
+    3 for the other groupers). Measured with
     ``python scripts/bench_register.py`` on the 33 Stanford pairs: RANSAC registers 30 within 2 mm at k = 1
     as at k = 3, at 0.13 s a pair instead of 0.20; geometric consistency drops to 27 at k = 1."""
 
@@ -128,6 +129,10 @@ def register(source, target, config: RegisterConfig | None = None, *, units="aut
     prepared = PreparedModel(model, 0, sp, sn, sp.mean(axis=0), cKDTree(sf))
     cand = match_features(tf, sf, pc.matching, model_tree=prepared.descriptor_tree)  # target looks up source
     hyps = grouper.group(scene, prepared, cand, np.random.default_rng(cfg.seed))
+    if not hyps and cfg.k is None and pc.matching.k < 3:  # one candidate each was too few: try three
+        more = dataclasses.replace(pc.matching, k=3)
+        cand = match_features(tf, sf, more, model_tree=prepared.descriptor_tree)
+        hyps = grouper.group(scene, prepared, cand, np.random.default_rng(cfg.seed))
     t2 = time.perf_counter()
     if not hyps:
         raise InputError("no consistent alignment found: do the inputs overlap, and are they in the same units?")
