@@ -4,7 +4,8 @@ The world frame is the first camera's. Frame by frame:
   1. camera odometry (``odometry.Odometry``) predicts ``T_world_cam``;
   2. on the first frame, every ``redetect_every`` frames and after a track is lost: full detection; each
      detection joins the track of the same object whose map position is within ``associate_distance`` x the
-     model's diameter, or starts a new track;
+     model's diameter, or starts a new track; a detection that joins a track competes with the track's own
+     prediction refined as in 3, and the better verified pose is kept;
   3. otherwise each mapped instance in view is refined by ICP from its predicted pose (map pose seen from the
      predicted camera), on the depth pixels around it only, and checked against the depth (``verify``); a score
      below ``min_score`` marks it lost;
@@ -150,6 +151,12 @@ class Tracker:
             if best is None:
                 best = Track(len(self.tracks) + 1, m.name, m.obj_id, mi, T_wm)
                 self.tracks.append(best)
+            else:  # the track's own prediction, refined, competes with the detection: the better verified wins
+                r = self.det.refine(frame, mi, np.linalg.inv(T_wc) @ best.T_world_model,
+                                    depth_margin=self.cfg.crop_margin)
+                if r.detection is not None and r.detection.score > d.score:
+                    d = r.detection
+                    T_cm = T_cam_input @ d.T_cam_model
             used.add(best.id)
             best.lost = False
             obs.append((best, T_cm, float(d.score), d))
