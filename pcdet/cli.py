@@ -370,7 +370,10 @@ def synth(models: Path = typer.Option(MODELS_DIR, help="Folder of mesh models.")
           sequence: int = typer.Option(0, help="Frames per scene from a camera moving around the table "
                                        "(0: one image per scene)."),
           seed: int = typer.Option(0, help="Random seed."),
-          noise: bool = typer.Option(True, help="Apply the Kinect noise model."),
+          noise: bool = typer.Option(True, help="Apply the sensor model."),
+          sensor: str = typer.Option("structured_light", help="Sensor model: structured_light (Kinect-like: noise "
+                                     "correlated between neighbouring pixels, quantised disparity) or "
+                                     "independent (per-pixel noise)."),
           units: str = typer.Option("auto", help="Model units: auto, m, cm, mm."),
           overwrite: bool = typer.Option(False, help="Replace the scenes an earlier synth wrote into OUT."),
           ):
@@ -379,7 +382,7 @@ def synth(models: Path = typer.Option(MODELS_DIR, help="Folder of mesh models.")
     from .synth import SynthConfig, check_synth_folder, synthesize
 
     cfg = SynthConfig(scenes=scenes, objects=objects, instances=instances, distractors=distractors, seed=seed,
-                      noise=noise, sequence=sequence)
+                      noise=noise, sensor=sensor, sequence=sequence)
     check_synth_folder(check_folder(out, "dataset folder"), overwrite=overwrite)
     lib = _library(models, PipelineConfig(), units)
     with _progress(detections=False) as prog:

@@ -2,8 +2,9 @@
 
 Each scene: K library objects resting on a table (a stable pose of each, a random yaw, no two footprints
 overlapping), a VGA camera with Kinect-like intrinsics on a hemisphere looking at them, depth rendered with
-open3d's RaycastingScene and degraded by a Kinect noise model (Nguyen et al. 2012 axial noise
-sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2 m, 1 mm quantisation, dropped pixels at depth edges).
+open3d's RaycastingScene and degraded by a sensor model (``pcdet.sensor``; by default a structured-light
+Kinect: Nguyen et al. 2012 axial noise sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2 m, correlated between
+neighbouring pixels, depth in steps of a disparity quantised to 1/8 pixel, dropped pixels at depth edges).
 """
 from __future__ import annotations
 
@@ -14,7 +15,6 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-from scipy.ndimage import maximum_filter, minimum_filter
 
 from .align import transform
 from .camera import Camera
@@ -24,6 +24,7 @@ from .io.bop import camera_pose_to_bop, camera_to_bop, pose_to_bop
 from .io.depth import write_depth_png, write_png
 from .library import ModelLibrary
 from .render import render_meshes
+from .sensor import SENSORS, apply_sensor
 
 KINECT = Camera(572.4114, 573.57043, 325.2611, 242.04899, 640, 480, 1.0)
 TABLE_HALF = 0.5  # m
@@ -36,8 +37,10 @@ class SynthConfig:
     instances: copies of one object allowed per scene (up to this many); distractors: clutter objects that are
     not in the library (random boxes, cylinders, cones, spheres and capsules, 3-12 cm; no ground truth);
     distance and elevation of the camera (m, degrees); area: radius (m) of the table disc the objects stand in;
-    noise: apply the sensor model; sequence: frames per scene (0: one image) taken by a camera that moves
-    smoothly around the table, sweeping ``sweep_deg`` of azimuth while its elevation and distance waver."""
+    noise: apply the sensor model; sensor: which (``pcdet.sensor.SENSORS``: "structured_light", the default, or
+    "independent", per-pixel noise, pcdet's model until 2026-11; the scenes are the same for every model);
+    sequence: frames per scene (0: one image) taken by a camera that moves smoothly around the table, sweeping
+    ``sweep_deg`` of azimuth while its elevation and distance waver."""
 
     scenes: int = 20
     objects: int = 4
@@ -47,6 +50,7 @@ class SynthConfig:
     elevation_deg: tuple[float, float] = (35.0, 70.0)
     area: float = 0.2
     noise: bool = True
+    sensor: str = "structured_light"
     seed: int = 0
     sequence: int = 0
     sweep_deg: float = 90.0
@@ -55,25 +59,8 @@ class SynthConfig:
         for name, low in (("scenes", 1), ("objects", 1), ("instances", 1), ("distractors", 0), ("sequence", 0)):
             if getattr(self, name) < low:
                 raise ConfigError(f"synth {name} must be >= {low}, got {getattr(self, name)}")
-
-
-def kinect_sigma(z: np.ndarray) -> np.ndarray:
-    """Axial depth noise standard deviation (m) of a Kinect v1 at depth ``z`` (m)."""
-    return 0.0012 + 0.0019 * (z - 0.4) ** 2
-
-
-def apply_kinect_noise(depth: np.ndarray, rng: np.random.Generator, edge_jump: float = 0.02,
-                       edge_drop: float = 0.6) -> np.ndarray:
-    """(H, W) float m -> (H, W) uint16 mm: axial noise, 1 mm quantisation, pixels dropped at depth edges
-    (where the 3x3 neighbourhood spans more than ``edge_jump`` m) with probability ``edge_drop``."""
-    valid = depth > 0
-    noisy = depth + rng.normal(size=depth.shape) * kinect_sigma(depth)
-    big = np.where(valid, depth, 1e3)
-    span = maximum_filter(np.where(valid, depth, 0), size=3) - minimum_filter(big, size=3)
-    edge = valid & (span > edge_jump)
-    drop = edge & (rng.random(depth.shape) < edge_drop)
-    raw = np.rint(np.where(valid & ~drop, noisy, 0) * 1000.0)
-    return np.clip(raw, 0, 65535).astype(np.uint16)
+        if self.sensor not in SENSORS:
+            raise ConfigError(f"synth sensor must be one of {', '.join(SENSORS)}, got {self.sensor!r}")
 
 
 def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -187,7 +174,7 @@ def compose_scene(lib: ModelLibrary, cfg: SynthConfig, rng: np.random.Generator,
     return placed, clutter
 
 
-def render_scene(lib, placed, T_world_cam, camera, rng, *, noise=True, clutter=()):
+def render_scene(lib, placed, T_world_cam, camera, rng, *, noise=True, clutter=(), sensor="structured_light"):
     """Render one view of the library objects ``placed`` and the distractors ``clutter`` (see
     ``compose_scene``): returns (raw depth uint16 mm, rgb uint8, gt list, gt_info list); ground truth covers
     ``placed`` only."""
@@ -196,7 +183,7 @@ def render_scene(lib, placed, T_world_cam, camera, rng, *, noise=True, clutter=(
     meshes = [(tv, tf, T_cam_world)] + [(lib[i].vertices, lib[i].faces, T_cam_world @ T) for i, T in placed]
     meshes += [(v, f, T_cam_world @ T) for v, f, T in clutter]
     r = render_meshes(camera, meshes)
-    raw = apply_kinect_noise(r.depth, rng) if noise else np.rint(r.depth * 1000).astype(np.uint16)
+    raw = apply_sensor(sensor if noise else "none", r.depth, rng, camera.fx)
     # shaded colour image: Lambert from a light at the camera, one hue per object, grey table and clutter
     shade = np.clip(-r.normals[..., 2], 0.15, 1.0)[..., None]
     palette = np.array([[200, 200, 200]] + [_colour(lib[i].obj_id) for i, _ in placed]
@@ -285,6 +272,7 @@ def synthesize(lib: ModelLibrary, out, cfg: SynthConfig, camera: Camera = KINECT
     if no_mesh:
         raise InputError(f"synth renders meshes; these models are point clouds: {no_mesh}")
     rng = np.random.default_rng(cfg.seed)
+    sensor_rng = np.random.default_rng([cfg.seed, 1])  # its own stream: the scenes do not depend on the sensor model
     placer = _Placer({i: (m.vertices, m.faces) for i, m in enumerate(lib)})
     write_models(lib, out / "models")
     atomic_write_text(out / "camera.json", json.dumps({"cx": camera.cx, "cy": camera.cy, "fx": camera.fx,
@@ -299,7 +287,8 @@ def synthesize(lib: ModelLibrary, out, cfg: SynthConfig, camera: Camera = KINECT
         sdir = out / "test" / f"{s:06d}"
         cams, gts, infos = {}, {}, {}
         for k, T_world_cam in enumerate(camera_path(az, el, dist, target, cfg)):
-            raw, rgb, gt, info = render_scene(lib, placed, T_world_cam, camera, rng, noise=cfg.noise, clutter=clutter)
+            raw, rgb, gt, info = render_scene(lib, placed, T_world_cam, camera, sensor_rng, noise=cfg.noise,
+                                              clutter=clutter, sensor=cfg.sensor)
             write_depth_png(sdir / "depth" / f"{k:06d}.png", raw)
             write_png(sdir / "rgb" / f"{k:06d}.png", rgb)
             cams[str(k)] = {**camera_to_bop(camera.K, 1.0), **camera_pose_to_bop(T_world_cam)}

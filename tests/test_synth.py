@@ -6,7 +6,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from pcdet.datasets.bop import BopDataset
-from pcdet.synth import SynthConfig, apply_kinect_noise, kinect_sigma, synthesize
+from pcdet.sensor import apply_kinect_noise, kinect_sigma
+from pcdet.synth import SynthConfig, synthesize
 
 
 def test_noise_model(rng):
@@ -21,6 +22,36 @@ def test_noise_model(rng):
     # (standard error 0.016 mm), and the noise spreads them over many 1 mm levels
     raw = apply_kinect_noise(np.full((200, 200), 1.4003, np.float32), rng)
     assert raw.astype(float).mean() == pytest.approx(1400.3, abs=0.1) and len(np.unique(raw)) > 10
+
+
+def test_structured_light_noise_is_correlated_and_comes_in_disparity_steps(rng):
+    """The structured-light model on a flat 1 m wall: RMS error within 15 % of the axial sigma (1.9 mm; the
+    disparity steps add to it); neighbouring pixels' errors correlate (> 0.5 at one pixel, as on real Kinect
+    frames, against < 0.05 for the independent model); depth falls on the steps of a 1/8-pixel disparity (at
+    1 m, 572 px and 7.5 cm: 2.3 mm apart), so far fewer distinct values than millimetres in the spread."""
+    from pcdet.sensor import structured_light
+
+    depth = np.full((240, 320), 1.0)
+    err = structured_light(depth, rng, fx=572.0).astype(float) / 1000 - 1.0
+    assert err.std() == pytest.approx(float(kinect_sigma(np.array(1.0))), rel=0.15)
+
+    def lag1(e):
+        e = e - e.mean()
+        return float((e[:, 1:] * e[:, :-1]).mean() / (e * e).mean())
+
+    assert lag1(err) > 0.5
+    assert abs(lag1(apply_kinect_noise(depth, rng).astype(float) / 1000 - 1.0)) < 0.05
+    levels = np.unique(np.round(err * 1000))
+    assert len(levels) < 0.6 * (levels.max() - levels.min() + 1)
+
+
+def test_synth_scenes_do_not_depend_on_the_sensor_model(tmp_path, library):
+    """The same seed gives the same objects and poses whichever sensor model renders them."""
+    gts = []
+    for sensor in ("structured_light", "independent"):
+        out = synthesize(library, tmp_path / sensor, SynthConfig(scenes=2, objects=2, seed=3, sensor=sensor))
+        gts.append([json.loads((p / "scene_gt.json").read_text()) for p in sorted((out / "test").iterdir())])
+    assert gts[0] == gts[1]
 
 
 def test_ground_truth_matches_depth(synth_small, library):
