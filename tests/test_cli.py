@@ -83,6 +83,8 @@ def test_bad_inputs_one_clear_line(scene):
                                                          "--out", scene / "x.json"))
     assert "synth scenes must be >= 1, got 0" in _error_line(_cli("synth", "--models", MODELS, "--out",
                                                                   scene / "syn", "--scenes", "0"))
+    assert "synth sensor must be one of structured_light" in _error_line(
+        _cli("synth", "--models", MODELS, "--out", scene / "syn", "--sensor", "lidar"))
     np.savetxt(scene / "nan.xyz", np.full((5, 3), np.nan))
     assert "nan.xyz: point cloud holds no finite point" in _error_line(_cli(*base, "--cloud", scene / "nan.xyz"))
 
