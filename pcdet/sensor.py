@@ -8,11 +8,11 @@ pixels dropped at depth edges:
   (about 9 x 9 on a Kinect v1), so neighbours share most of their error; its disparity is a fixed-point number
   (1/8 pixel), so depth falls on steps of z^2 / (8 f b) (1.5 mm at 0.72 m for f = 572 px, b = 7.5 cm).
 
-Measured on 10 real LINEMOD cat frames (Kinect v1; ``python scripts/sim_to_real.py``): the residual of a plane
-fitted to 15 x 15 smooth patches has a median RMS of 1.8 mm at a median 0.95 m, and its autocorrelation along a
-row is 0.68, 0.43, 0.25, 0.12 and 0.01 at 1-5 pixels. Independent noise has the right RMS and no correlation
-(-0.01 at every lag): it averages out over a descriptor's support, and real noise does not. The correlated
-share and width below reproduce the real profile (see that script for the figures of each model).
+Measured on 20 real LINEMOD cat frames (Kinect v1; ``python scripts/sim_to_real.py --frames 20``): the residual
+of a plane fitted to 15 x 15 smooth patches has a median RMS of 1.55 mm at a median 0.87 m, and its
+autocorrelation along a row is 0.68, 0.42, 0.24, 0.10 and 0.00 at 1-5 pixels. Independent noise has about the
+right RMS (1.62 mm) and no correlation (-0.01 at every lag): it averages out over a descriptor's support, and
+real noise does not. The correlated share and width below give 1.41 mm and 0.65, 0.44, 0.22, 0.02, -0.12.
 """
 from __future__ import annotations
 
