@@ -138,6 +138,7 @@ class Tracker:
         obs = []
         used: set[int] = set()
         T_cam_input = np.linalg.inv(frame.T_input_cam)
+        T_cw = np.linalg.inv(T_wc)
         for d in res.detections:
             mi = self.det.library.index_of(d.obj_id)
             m = self.det.library[mi]
@@ -152,8 +153,7 @@ class Tracker:
                 best = Track(len(self.tracks) + 1, m.name, m.obj_id, mi, T_wm)
                 self.tracks.append(best)
             else:  # the track's own prediction, refined, competes with the detection: the better verified wins
-                r = self.det.refine(frame, mi, np.linalg.inv(T_wc) @ best.T_world_model,
-                                    depth_margin=self.cfg.crop_margin)
+                r = self.det.refine(frame, mi, T_cw @ best.T_world_model, depth_margin=self.cfg.crop_margin)
                 if r.detection is not None and r.detection.score > d.score:
                     d = r.detection
                     T_cm = T_cam_input @ d.T_cam_model
