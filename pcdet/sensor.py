@@ -36,15 +36,17 @@ def _edge_drop(depth: np.ndarray, rng: np.random.Generator, edge_jump: float, ed
     return valid & (span > edge_jump) & (rng.random(depth.shape) < edge_drop)
 
 
+def _raw(noisy: np.ndarray, valid: np.ndarray, drop: np.ndarray) -> np.ndarray:
+    """Noisy depth (H, W) m -> raw (H, W) uint16 mm, 0 where there was no return or the pixel was dropped."""
+    return np.clip(np.rint(np.where(valid & ~drop, noisy, 0) * 1000.0), 0, 65535).astype(np.uint16)
+
+
 def apply_kinect_noise(depth: np.ndarray, rng: np.random.Generator, edge_jump: float = 0.02,
                        edge_drop: float = 0.6) -> np.ndarray:
     """The ``independent`` model. (H, W) float m (0: no return) -> (H, W) uint16 mm: axial noise drawn per pixel,
     1 mm quantisation, pixels dropped at depth edges (``_edge_drop``)."""
-    valid = depth > 0
     noisy = depth + rng.normal(size=depth.shape) * kinect_sigma(depth)
-    drop = _edge_drop(depth, rng, edge_jump, edge_drop)
-    raw = np.rint(np.where(valid & ~drop, noisy, 0) * 1000.0)
-    return np.clip(raw, 0, 65535).astype(np.uint16)
+    return _raw(noisy, depth > 0, _edge_drop(depth, rng, edge_jump, edge_drop))
 
 
 def structured_light(depth: np.ndarray, rng: np.random.Generator, *, fx: float = 572.0, baseline: float = 0.075,
@@ -67,10 +69,7 @@ def structured_light(depth: np.ndarray, rng: np.random.Generator, *, fx: float =
     sigma_d = kinect_sigma(z) * fb / z ** 2  # the axial sigma carried into disparity (pixels)
     disparity = fb / z + unit * sigma_d
     disparity = np.round(disparity * subpixel) / subpixel
-    noisy = fb / np.maximum(disparity, 1e-6)
-    drop = _edge_drop(depth, rng, edge_jump, edge_drop)
-    raw = np.rint(np.where(valid & ~drop, noisy, 0) * 1000.0)
-    return np.clip(raw, 0, 65535).astype(np.uint16)
+    return _raw(fb / np.maximum(disparity, 1e-6), valid, _edge_drop(depth, rng, edge_jump, edge_drop))
 
 
 def apply_sensor(name: str, depth: np.ndarray, rng: np.random.Generator, fx: float = 572.0) -> np.ndarray:

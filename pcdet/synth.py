@@ -174,16 +174,16 @@ def compose_scene(lib: ModelLibrary, cfg: SynthConfig, rng: np.random.Generator,
     return placed, clutter
 
 
-def render_scene(lib, placed, T_world_cam, camera, rng, *, noise=True, clutter=(), sensor="structured_light"):
+def render_scene(lib, placed, T_world_cam, camera, rng, *, clutter=(), sensor="structured_light"):
     """Render one view of the library objects ``placed`` and the distractors ``clutter`` (see
-    ``compose_scene``): returns (raw depth uint16 mm, rgb uint8, gt list, gt_info list); ground truth covers
-    ``placed`` only."""
+    ``compose_scene``) through the sensor model ``sensor`` (``pcdet.sensor.SENSORS``; "none": depth rounded to
+    1 mm): returns (raw depth uint16 mm, rgb uint8, gt list, gt_info list); ground truth covers ``placed`` only."""
     T_cam_world = np.linalg.inv(T_world_cam)
     tv, tf = _table_mesh()
     meshes = [(tv, tf, T_cam_world)] + [(lib[i].vertices, lib[i].faces, T_cam_world @ T) for i, T in placed]
     meshes += [(v, f, T_cam_world @ T) for v, f, T in clutter]
     r = render_meshes(camera, meshes)
-    raw = apply_sensor(sensor if noise else "none", r.depth, rng, camera.fx)
+    raw = apply_sensor(sensor, r.depth, rng, camera.fx)
     # shaded colour image: Lambert from a light at the camera, one hue per object, grey table and clutter
     shade = np.clip(-r.normals[..., 2], 0.15, 1.0)[..., None]
     palette = np.array([[200, 200, 200]] + [_colour(lib[i].obj_id) for i, _ in placed]
@@ -287,8 +287,8 @@ def synthesize(lib: ModelLibrary, out, cfg: SynthConfig, camera: Camera = KINECT
         sdir = out / "test" / f"{s:06d}"
         cams, gts, infos = {}, {}, {}
         for k, T_world_cam in enumerate(camera_path(az, el, dist, target, cfg)):
-            raw, rgb, gt, info = render_scene(lib, placed, T_world_cam, camera, sensor_rng, noise=cfg.noise,
-                                              clutter=clutter, sensor=cfg.sensor)
+            raw, rgb, gt, info = render_scene(lib, placed, T_world_cam, camera, sensor_rng, clutter=clutter,
+                                              sensor=cfg.sensor if cfg.noise else "none")
             write_depth_png(sdir / "depth" / f"{k:06d}.png", raw)
             write_png(sdir / "rgb" / f"{k:06d}.png", rgb)
             cams[str(k)] = {**camera_to_bop(camera.K, 1.0), **camera_pose_to_bop(T_world_cam)}
