@@ -35,27 +35,60 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
     flat = cand.reshape(-1)
     lo2 = np.maximum(fs[:, 0] - edge_tolerance, 0) ** 2  # squared bounds: no square root per candidate pair
     hi2 = (fs[:, 0] + edge_tolerance) ** 2
-    def test(part):
+    def angles_agree(pair, ma, mb):  # (n,) bool: the three angles of scene and model pairs agree
+        fm = pair_features(mp[ma], mn[ma], mp[mb], mn[mb])
+        d = np.abs(fs[pair, 1:] - fm[:, 1:])
+        return (d[:, 0] < tol) & (d[:, 1] < tol) & (d[:, 2] < tol)
+
+    def test(part):  # (pair index, correspondence id at a, at b) listed one by one (sparse candidates)
         pair, ia, ib = part
         ma, mb = flat[ia], flat[ib]
         dv = mp[mb] - mp[ma]
         l2 = np.einsum("ij,ij->i", dv, dv)
         # the cheap length test first, the angles only for what passes it
         sel = np.flatnonzero((l2 > lo2[pair]) & (l2 < hi2[pair]) & (ma != mb))
-        ma, mb = ma[sel], mb[sel]
-        fm = pair_features(mp[ma], mn[ma], mp[mb], mn[mb])
-        d = np.abs(fs[pair[sel], 1:] - fm[:, 1:])
-        keep = sel[(d[:, 0] < tol) & (d[:, 1] < tol) & (d[:, 2] < tol)]
+        keep = sel[angles_agree(pair[sel], ma[sel], mb[sel])]
         return ia[keep], ib[keep]
 
-    parts = _candidate_pairs(a, b, cand)
-    if workers > 1:  # the chunks are independent; their results are joined in order, so the graph is the same
+    mx, my, mz = (np.ascontiguousarray(mp[:, i]) for i in range(3))
+
+    def test_rows(rows):  # every candidate of a against every candidate of b, for a block of scene pairs
+        ca, cb = cand[a[rows]], cand[b[rows]]  # (n, k)
+        # coordinates gathered once per block, one array per axis: the length test runs on (n, k) arrays
+        ax, ay, az, bx, by, bz = mx[ca], my[ca], mz[ca], mx[cb], my[cb], mz[cb]
+        lo, hi, vb = lo2[rows, None], hi2[rows, None], cb >= 0
+        out_a, out_b = [], []
+        for r1 in range(k):
+            ma = ca[:, r1]
+            d = bx - ax[:, r1, None]
+            l2 = d * d
+            d = by - ay[:, r1, None]
+            l2 += d * d
+            d = bz - az[:, r1, None]
+            l2 += d * d
+            ok = (l2 > lo) & (l2 < hi) & (cb != ma[:, None]) & vb
+            ok &= (ma >= 0)[:, None]
+            sel = np.flatnonzero(ok)
+            p, r2 = sel // k, sel % k
+            good = angles_agree(rows[p], ma[p], cb[p, r2])
+            p, r2 = p[good], r2[good]
+            out_a.append(a[rows[p]] * k + r1)
+            out_b.append(b[rows[p]] * k + r2)
+        return np.concatenate(out_a), np.concatenate(out_b)
+
+    if (cand >= 0).mean() > 0.6:  # most candidates valid: blocks of scene pairs, all k x k candidate pairs
+        step = max(1, (1 << 19) // k)
+        blocks = [np.arange(lo, min(lo + step, len(a))) for lo in range(0, len(a), step)]
+        fn, parts = test_rows, blocks
+    else:
+        fn, parts = test, _candidate_pairs(a, b, cand)
+    if workers > 1:  # the chunks are independent; the graph is sorted below, so it is the same for any number
         from concurrent.futures import ThreadPoolExecutor
 
         with ThreadPoolExecutor(workers) as pool:
-            found = list(pool.map(test, parts))
+            found = list(pool.map(fn, parts))
     else:
-        found = [test(p) for p in parts]
+        found = [fn(p) for p in parts]
     ca_parts = [x for x, _ in found]
     cb_parts = [y for _, y in found]
     ca = np.concatenate(ca_parts) if ca_parts else np.zeros(0, np.int64)
@@ -70,18 +103,11 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
 
 
 def _candidate_pairs(a: np.ndarray, b: np.ndarray, cand: np.ndarray, chunk: int = 1 << 22):
-    """Every (candidate of a, candidate of b) of the scene pairs (a, b), valid candidates only, in chunks of
-    about ``chunk``: yields (pair index into a and b, correspondence id at a, correspondence id at b). When
-    most candidates are valid, one chunk per (r1, r2) column pair; when many are missing (a colour gate left
-    few), each pair's valid candidates are enumerated so that no work goes to missing ones."""
+    """Every (valid candidate of a, valid candidate of b) of the scene pairs (a, b), in chunks of about
+    ``chunk``: yields (pair index into a and b, correspondence id at a, correspondence id at b). For candidate
+    tables with many missing entries (a colour gate left few): no work goes to missing ones."""
     S, k = cand.shape
     valid = cand >= 0
-    if valid.mean() > 0.6:
-        for r1 in range(k):
-            for r2 in range(k):
-                pair = np.flatnonzero(valid[a, r1] & valid[b, r2])
-                yield pair, a[pair] * k + r1, b[pair] * k + r2
-        return
     count = valid.sum(axis=1)
     first = np.concatenate([[0], np.cumsum(count)[:-1]])
     corr = np.flatnonzero(valid.reshape(-1))  # ids (s * k + r) of the valid candidates, keypoint by keypoint
@@ -106,27 +132,34 @@ def correspondence_points(scene_pts: np.ndarray, cand: np.ndarray, model_pts: np
 def distinct_poses(T: np.ndarray, order: np.ndarray, diameter: float, limit: int) -> np.ndarray:
     """The first ``limit`` entries of ``order`` (indices into T (B, 4, 4)) whose pose differs from every earlier
     kept one (rotation by more than 10 degrees or translation by more than a fifth of the diameter)."""
-    cos10, near = np.cos(np.radians(10)), 0.2 * diameter
+    cos10, near2 = np.cos(np.radians(10)), (0.2 * diameter) ** 2
+    R, t = T[:, :3, :3].reshape(len(T), 9), T[:, :3, 3]
 
-    def close(K: np.ndarray, C: np.ndarray) -> np.ndarray:  # (n,) whether each of C is near one of K
-        c = (np.einsum("kij,nij->nk", K[:, :3, :3], C[:, :3, :3]) - 1) / 2  # cos of the relative rotations
-        dt = C[:, None, :3, 3] - K[None, :, :3, 3]
-        return np.any((c > cos10) & (np.einsum("nki,nki->nk", dt, dt) < near * near), axis=1)
+    def close(A: np.ndarray, C: np.ndarray) -> np.ndarray:  # (len(A), len(C)): whether A[a] is near C[c]
+        c = (R[A] @ R[C].T - 1) / 2  # cos of the relative rotations: (trace(Ra^T Rc) - 1) / 2
+        dt = t[A][:, None, :] - t[C][None, :, :]
+        return (c > cos10) & (np.einsum("aci,aci->ac", dt, dt) < near2)
 
-    kept: list[int] = []
+    kept = np.zeros(0, np.int64)
     order = np.asarray(order, np.int64)
     for i in range(0, len(order), 256):  # a run of candidates is tested against the poses kept before it at once
         chunk = order[i:i + 256]
-        if kept:
-            chunk = chunk[~close(T[kept], T[chunk])]
-        before = len(kept)
-        for b in chunk:  # then one by one against those kept within the run
-            if len(kept) > before and close(T[kept[before:]], T[b][None])[0]:
+        if len(kept):
+            chunk = chunk[~close(kept, chunk).any(axis=0)]
+        near = close(chunk, chunk)  # then greedily within the run: a kept pose blocks those near it
+        blocked = np.zeros(len(chunk), bool)
+        take: list[int] = []
+        for j in range(len(chunk)):
+            if blocked[j]:
                 continue
-            kept.append(int(b))
-            if len(kept) >= limit:
-                return np.array(kept, np.int64)
-    return np.array(kept, np.int64)
+            take.append(j)
+            if len(kept) + len(take) >= limit:
+                break
+            blocked |= near[j]
+        kept = np.concatenate([kept, chunk[take]])
+        if len(kept) >= limit:
+            break
+    return kept
 
 
 def refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -138,9 +171,14 @@ def refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tu
     far outside every kernel); the inliers are taken among all of them."""
     T = T.copy()
 
-    def dist(T, cm, cs):
-        pred = np.matmul(cm, T[:, :3, :3].transpose(0, 2, 1)) + T[:, None, :3, 3] - cs[None]
-        return np.sqrt(np.einsum("bmi,bmi->bm", pred, pred))
+    def dist(T, cm, cs):  # (B, M): one product per coordinate keeps every array (B, M) and contiguous
+        mh = np.vstack([cm.T, np.ones(len(cm))])  # (4, M) homogeneous model points
+        e = T[:, 0, :] @ mh - cs[:, 0]
+        d2 = e * e
+        for i in (1, 2):
+            e = T[:, i, :] @ mh - cs[:, i]
+            d2 += e * e
+        return np.sqrt(d2)
 
     d = dist(T, cm, cs)
     near = np.flatnonzero((d < 3 * tau).any(axis=0))
