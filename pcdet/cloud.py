@@ -186,7 +186,7 @@ def segment_plane(points: np.ndarray, distance: float, iterations: int = 200,
 def support_region(points: np.ndarray, plane: Plane, max_height: float, min_height: float) -> np.ndarray:
     """(N,) bool: the points that stand on ``plane``: between ``min_height`` and ``max_height`` m above it
     (on the camera's side) and inside the outline of its inliers (their convex hull, in the plane)."""
-    from scipy.spatial import ConvexHull, Delaunay
+    from scipy.spatial import ConvexHull
 
     n = plane.normal
     u = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
@@ -197,10 +197,15 @@ def support_region(points: np.ndarray, plane: Plane, max_height: float, min_heig
     test = np.flatnonzero(out)  # the outline test only for points at a height that could stand on the plane
     uv = np.stack([points @ u, points @ v], axis=1)
     try:
-        outline = uv[plane.inliers][ConvexHull(uv[plane.inliers]).vertices]
-        out[test] = Delaunay(outline).find_simplex(uv[test]) >= 0
+        edges = ConvexHull(uv[plane.inliers]).equations  # (E, 3): a . x + b <= 0 inside every edge
     except Exception:  # qhull: a degenerate (collinear) plane has no outline; nothing stands on it
         out[:] = False
+        return out
+    tu, tv = uv[test, 0], uv[test, 1]
+    inside = np.ones(len(test), bool)
+    for a0, a1, b in edges:  # one edge at a time: no (points x edges) array
+        inside &= tu * a0 + tv * a1 + b <= 1e-12
+    out[test] = inside
     return out
 
 
