@@ -200,9 +200,10 @@ def test_refit_batch_pulls_poses_onto_their_inliers_and_ignores_far_matches(rng)
 
 
 def test_scene_pairs_are_the_same_when_every_pair_is_within_reach(rng):
-    """``scene_pairs`` takes every pair at once when the radius covers the points' extent: the pairs (a < b, sorted)
-    and their features equal those the KD-tree search gives for a radius a hair below the extent."""
-    from pcdet.pairs import scene_pairs
+    """``scene_pairs`` takes every pair at once when the radius covers the points' extent: the pairs (a < b) and
+    their features equal those the KD-tree search gives for a radius a hair below the extent (which lists them
+    in its own order), and the features equal ``pair_features`` of the gathered rows within 1e-6 (m, rad)."""
+    from pcdet.pairs import pair_features, scene_pairs
 
     pts = rng.uniform(0, 0.1, (200, 3))
     nrm = rng.normal(size=(200, 3))
@@ -212,10 +213,11 @@ def test_scene_pairs_are_the_same_when_every_pair_is_within_reach(rng):
     every = scene_pairs(pts, nrm, labels, reach)
     searched = scene_pairs(pts, nrm, labels, reach * (1 - 1e-9))
     assert len(every.a) == 200 * 199 // 2
+    assert (every.a < every.b).all() and (searched.a < searched.b).all()
     # the farthest pair may fall just outside the smaller radius: compare on the pairs the search found
-    found = {(a, b) for a, b in zip(searched.a, searched.b)}
-    mask = np.array([(a, b) in found for a, b in zip(every.a, every.b)])
-    assert mask.sum() >= len(every.a) - 1
-    np.testing.assert_array_equal(every.a[mask], searched.a)
-    np.testing.assert_array_equal(every.b[mask], searched.b)
-    np.testing.assert_array_equal(every.features[mask], searched.features)
+    row = {(a, b): i for i, (a, b) in enumerate(zip(every.a, every.b))}
+    at = np.array([row[(a, b)] for a, b in zip(searched.a, searched.b)])
+    assert len(at) >= len(every.a) - 1
+    np.testing.assert_array_equal(every.features[at], searched.features)
+    direct = pair_features(pts[every.a], nrm[every.a], pts[every.b], nrm[every.b])
+    np.testing.assert_allclose(every.features, direct, atol=1e-6)
