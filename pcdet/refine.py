@@ -5,7 +5,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
 from .align import transform
 from .errors import ConfigError
@@ -66,15 +65,18 @@ def icp(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_in
         if len(p) < 6:
             break
         r = ((p - q) * n).sum(axis=1)
-        J = np.concatenate([np.cross(p, n), n], axis=1)  # d r / d (omega, t) at the current pose
-        A = (J * w[:, None]).T @ J
-        b = -(J * w[:, None]).T @ r
+        J = np.empty((len(p), 6))  # d r / d (omega, t) at the current pose: (p x n, n)
+        J[:, 0] = p[:, 1] * n[:, 2] - p[:, 2] * n[:, 1]
+        J[:, 1] = p[:, 2] * n[:, 0] - p[:, 0] * n[:, 2]
+        J[:, 2] = p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]
+        J[:, 3:] = n
+        Jw = J.T * w
         try:
-            x = np.linalg.solve(A + 1e-9 * np.eye(6), b)
+            x = np.linalg.solve(Jw @ J + 1e-9 * np.eye(6), -(Jw @ r))
         except np.linalg.LinAlgError:
             break
         dT = np.eye(4)
-        dT[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
+        dT[:3, :3] = _rotvec_matrix(x[:3])
         dT[:3, 3] = x[3:]
         T = dT @ T
         if np.linalg.norm(x[:3]) < tolerance[0] and np.linalg.norm(x[3:]) < tolerance[1]:
@@ -84,6 +86,15 @@ def icp(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_in
     r = ((p - q) * n).sum(axis=1)
     rmse = float(np.sqrt((r ** 2).mean())) if len(r) else float("inf")
     return RegistrationResult(T, len(p) / max(n_src, 1), rmse, len(p), it, converged)
+
+
+def _rotvec_matrix(v: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation by the rotation vector ``v`` (rad), by Rodrigues' formula."""
+    theta = float(np.sqrt(v @ v))
+    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    if theta < 1e-12:
+        return np.eye(3) + K
+    return np.eye(3) + (np.sin(theta) / theta) * K + ((1 - np.cos(theta)) / theta ** 2) * (K @ K)
 
 
 def _pairs(source, source_normals, target, target_normals, tree, T, *, cfg, viewpoint):
