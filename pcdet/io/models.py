@@ -91,7 +91,7 @@ def resolve_scale(verts: np.ndarray, units, path: Path, notes: list[str]) -> flo
     (under 2 mm or over 3 m, after reading) is refused in "auto" mode, since it means the units are not what
     they seem: give ``units`` to read such a model anyway. Forced units that make the model over 3 m wide are
     warned about (``UnitsWarning``)."""
-    extent = float(np.ptp(verts, axis=0).max())
+    extent = float((verts.max(axis=0) - verts.min(axis=0)).max())
     if units in (None, "auto"):
         scale = 0.001 if extent > MM_DETECT_EXTENT else 1.0
         size = extent * scale
@@ -149,14 +149,15 @@ def as_geometry(source, units="auto", name: str = "input") -> Geometry:
     verts, faces, normals = _in_memory(source, name)
     if faces is None:
         fin = np.isfinite(verts).all(axis=1)
-        verts, normals = verts[fin], (normals[fin] if normals is not None else None)
+        if not fin.all():
+            verts, normals = verts[fin], (normals[fin] if normals is not None else None)
     elif not np.isfinite(verts).all():
         raise InputError(f"{name}: mesh has non-finite vertex coordinates")
     if len(verts) < 3:
         raise InputError(f"{name}: {len(verts)} finite points; at least 3 are needed")
     notes: list[str] = []
     scale = resolve_scale(verts, units, Path(name), notes)
-    return Geometry(verts * scale, faces, normals, scale, notes)
+    return Geometry(verts * scale, faces, normals, scale, notes)  # a copy: the caller's array stays theirs
 
 
 def _in_memory(source, name: str):
