@@ -144,8 +144,9 @@ class LibraryIndex:
                 ) -> tuple[np.ndarray, np.ndarray]:
         """The ``k`` nearest rows to each query (Q, 33), as (Q, k) distances and row indices, nearest first.
         ``dims`` 0: exact. Otherwise the 8 k nearest on the first ``dims`` principal components, re-ranked by
-        the full distance: approximate. On a real LINEMOD frame against 230k library descriptors, 12 components
-        keep 98 % of the exact 32 nearest and the exact nearest in 99.8 % of queries, 4.5x faster."""
+        the full distance: approximate. For the 13k keypoints of a real LINEMOD frame against 230k library
+        descriptors, 12 components keep 98 % of the exact 32 nearest and the exact nearest for 99.8 % of the
+        keypoints, in 3.7 s instead of 22.7 (against 62k descriptors: 1.9 s instead of 3.2), on two threads."""
         if dims <= 0 or self.features is None or k * 8 >= len(self.features):
             d, i = self.tree.query(queries, k=k, workers=workers)  # exact search: same on any thread count
             return d.reshape(len(queries), k), i.reshape(len(queries), k).astype(np.int64)
