@@ -127,17 +127,14 @@ class LibraryIndex:
     """One descriptor index over several models: the KD-tree of their features stacked (D, 33), and for each
     row its model (position in the list it was built from) and its keypoint index within that model.
     colours : (D, 2) chromaticity per row (NaN where the model has none), or None when no model has colour.
-    features : (D, 33) the stacked descriptors; mean (33,) and basis (33, 33) their principal axes (rows, by
-    decreasing variance), and projected trees on the first n of them, built on first use (``nearest``)."""
+    projected : ``{n: (mean (33,), axes (n, 33), KD-tree)}``, the descriptors on their first n principal axes,
+    built on first use (``nearest``)."""
 
     tree: cKDTree
     owner: np.ndarray
     local: np.ndarray
     n_models: int
     colours: np.ndarray | None
-    features: np.ndarray | None = None
-    mean: np.ndarray | None = None
-    basis: np.ndarray | None = None
     projected: dict = field(default_factory=dict)
 
     def nearest(self, queries: np.ndarray, k: int, dims: int = 0, workers: int = 1
@@ -147,16 +144,21 @@ class LibraryIndex:
         the full distance: approximate. For the 13k keypoints of a real LINEMOD frame against 230k library
         descriptors, 12 components keep 98 % of the exact 32 nearest and the exact nearest for 99.8 % of the
         keypoints, in 3.7 s instead of 22.7 (against 62k descriptors: 1.9 s instead of 3.2), on two threads."""
-        if dims <= 0 or self.features is None or k * 8 >= len(self.features):
+        feats = self.tree.data  # (D, 33) float64, the stacked descriptors
+        if dims <= 0 or k * 8 >= len(feats):
             d, i = self.tree.query(queries, k=k, workers=workers)  # exact search: same on any thread count
             return d.reshape(len(queries), k), i.reshape(len(queries), k).astype(np.int64)
         if dims not in self.projected:
-            self.projected[dims] = cKDTree((self.features - self.mean) @ self.basis[:dims].T)
-        _, cand = self.projected[dims].query((queries - self.mean) @ self.basis[:dims].T, k=8 * k, workers=workers)
+            mean = feats.mean(axis=0)
+            sample = feats[:: max(1, len(feats) // 20000)] - mean  # the principal axes of a spread sample
+            axes = np.linalg.svd(sample, full_matrices=False)[2][:dims]
+            self.projected[dims] = (mean, axes, cKDTree((feats - mean) @ axes.T))
+        mean, axes, tree = self.projected[dims]
+        _, cand = tree.query((queries - mean) @ axes.T, k=8 * k, workers=workers)
         dist, idx = np.empty((len(queries), k)), np.empty((len(queries), k), np.int64)
         for lo in range(0, len(queries), 512):  # re-rank in blocks: (512, 8 k, 33) at a time
             c = cand[lo:lo + 512]
-            diff = self.features[c] - queries[lo:lo + 512, None, :]
+            diff = feats[c] - queries[lo:lo + 512, None, :]
             d2 = np.einsum("qcd,qcd->qc", diff, diff)
             order = np.argsort(d2, axis=1, kind="stable")[:, :k]  # ties keep the projected order: deterministic
             dist[lo:lo + 512] = np.sqrt(np.take_along_axis(d2, order, axis=1))
@@ -173,11 +175,7 @@ class LibraryIndex:
         if any(c is not None for c in colours):
             col = np.concatenate([c if c is not None else np.full((len(f), 2), np.nan)
                                   for f, c in zip(features, colours)])
-        stacked = np.concatenate(features).astype(np.float64)
-        mean = stacked.mean(axis=0)
-        sample = stacked[:: max(1, len(stacked) // 20000)] - mean  # the principal axes of a spread sample
-        basis = np.linalg.svd(sample, full_matrices=False)[2] if len(sample) >= 33 else np.eye(33)
-        return cls(cKDTree(stacked), owner, local, len(features), col, stacked, mean, basis)
+        return cls(cKDTree(np.concatenate(features)), owner, local, len(features), col)
 
 
 def match_library(scene_features: np.ndarray, index: LibraryIndex, cfg: MatchingConfig, *, workers: int = 1,

@@ -115,4 +115,4 @@ def test_library_search_on_principal_components():
     assert np.mean([len(set(a) & set(b)) / 16 for a, b in zip(i12, i0)]) >= 0.95
     assert np.mean(i12[:, 0] == i0[:, 0]) >= 0.98
     assert (np.diff(d12, axis=1) >= 0).all()
-    np.testing.assert_allclose(d12, np.linalg.norm(index.features[i12] - q[:, None], axis=2), rtol=1e-9)
+    np.testing.assert_allclose(d12, np.linalg.norm(index.tree.data[i12] - q[:, None], axis=2), rtol=1e-9)
