@@ -23,7 +23,7 @@ from .features import fpfh
 from .frame import Frame
 from .global_verify import candidate_terms, same_object_conflicts, select
 from .grouping import Hypothesis, make_grouper
-from .grouping.common import distinct_poses
+from .grouping.common import distinct_poses, distinct_surfaces
 from .keypoints import select_keypoints
 from .library import ModelLibrary
 from .matching import Candidates, LibraryIndex, match_features, match_library
@@ -110,23 +110,31 @@ class Refinement:
     detection: Detection | None = None
 
 
-def _best_per_model(indices: list[int], looks, hyps: list[Hypothesis], n: int) -> list[int]:
-    """Of ``indices`` (into ``hyps``), the ``n`` best-scored by ``looks[j].score`` per model, best first (ties by
-    index), models in order of their best."""
-    per_model: dict[int, list[int]] = {}
-    for j in sorted(indices, key=lambda j: (-looks[j].score, j)):
-        per_model.setdefault(hyps[j].model_index, []).append(j)
-    return [j for js in per_model.values() for j in js[:n]]
+SURFACE_SAMPLES = 128  # model samples that tell two candidate poses' surfaces apart (_distinct_per_model)
 
 
-def _distinct_per_model(indices: list[int], looks, hyps: list[Hypothesis], poses: dict, library) -> list[int]:
-    """``indices`` without those whose pose (``poses[j]``) repeats a better-looking one of the same model
-    (within 10 degrees and a fifth of the diameter; ``grouping.common.distinct_poses``)."""
+def _spread_per_model(indices: list[int], looks, hyps: list[Hypothesis], poses: dict, models: list[PreparedModel],
+                      limit: int, spots: dict[int, int] | None = None) -> list[int]:
+    """Per model, up to ``limit`` of ``indices`` (into ``hyps``, posed at ``poses[j]``), best-looking first
+    (``looks[j].score``, ties by index), none within 10 degrees and a fifth of the diameter of a better-looking
+    one. The first ``spots[model index]`` (default: all ``limit``) are taken on distinct spots of the scene:
+    each puts the model's surface somewhere else than every better-looking one (a mean closest-point distance
+    of a tenth of the diameter or more, ``grouping.common.distinct_surfaces``), so that three copies of an
+    object, or a box turned every way on one spot, do not take the whole budget; the rest are the
+    best-looking left, alternatives on the same spots (when one instance is wanted, a flange turned by one
+    bolt hole is worth refining)."""
     out = []
     for mi in sorted({hyps[j].model_index for j in indices}):
         js = sorted((j for j in indices if hyps[j].model_index == mi), key=lambda j: (-looks[j].score, j))
+        pm = models[mi]
         T = np.array([poses[j] for j in js])
-        out += [js[i] for i in distinct_poses(T, np.arange(len(js)), library[mi].diameter, len(js))]
+        order = distinct_poses(T, np.arange(len(js)), pm.model.diameter, len(js))
+        n_spots = limit if spots is None else min(limit, spots.get(mi, limit))
+        step = max(1, -(-len(pm.icp_points) // SURFACE_SAMPLES))
+        first = distinct_surfaces(T, order, pm.icp_points[::step], pm.model.diameter, n_spots)
+        taken = set(first.tolist())
+        rest = [i for i in order if i not in taken][:limit - len(first)]
+        out += [js[i] for i in sorted([*taken, *rest])]
     return out
 
 
@@ -300,6 +308,8 @@ class Detector:
         cfg = self.config
         tm = _Timer()
         models = [pm for pm in self.models if targets is None or pm.model.obj_id in targets]
+        # distinct spots of the scene each model's budget covers first: the instances wanted (all, without targets)
+        spots = None if targets is None else {pm.index: targets[pm.model.obj_id] for pm in models}
         scene = self.scene(frame, tm, models)
         stats = {"scene_points": len(scene.points), "scene_keypoints": len(scene.keypoints)}
         hyps = self._hypotheses(scene, models, tm, trace)
@@ -318,7 +328,9 @@ class Detector:
         start = {j: hyps[j].T_scene_model for j in plausible}
         look = pre
         if rc.candidates > 0:
-            coarse = _best_per_model(plausible, pre, hyps, rc.candidates)
+            # raw poses on distinct spots first: near-copies of one pose would all slide to the same place,
+            # and the budget would go to one instance of a crowded scene (or to one box turned every way)
+            coarse = _spread_per_model(plausible, pre, hyps, start, self.models, rc.candidates, spots)
             with tm("refine"):
                 moved = self._map(lambda j: self._coarse_icp(self.models[hyps[j].model_index], scene,
                                                              hyps[j].T_scene_model), coarse)
@@ -330,11 +342,11 @@ class Detector:
             start = {j: (T if second[n].score >= pre[j].score else hyps[j].T_scene_model)
                      for n, (j, T) in enumerate(zip(coarse, moved))}
             plausible = [j for j in coarse if look[j].n_supported > 0]
-            # candidates that converged onto the same pose are one: keep the best-looking of each
-            plausible = _distinct_per_model(plausible, look, hyps, start, self.library)
             if trace is not None:
                 trace.coarse = coarse
-        keep = sorted(_best_per_model(plausible, look, hyps, rc.max_per_model))
+        # the full ICP for the best few per model, on distinct spots first; candidates that converged onto the
+        # same pose are one (the best-looking of them)
+        keep = sorted(_spread_per_model(plausible, look, hyps, start, self.models, rc.max_per_model, spots))
         if trace is not None:
             trace.first_look, trace.refined = pre, keep
         hyps_all, hyps = hyps, [hyps[j] for j in keep]

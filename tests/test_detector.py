@@ -84,3 +84,33 @@ def test_pcl_milk_with_hough_grouping(preset):
     T = res.detections[0].T_cam_model
     assert np.linalg.norm(T[:3, 3] - T_gt[:3, 3]) < 0.005
     assert rotation_error_deg(T[:3, :3], T_gt[:3, :3]) < 2.0
+
+
+def test_refinement_budget_covers_distinct_spots_first():
+    """The ICP budget of one model (``_spread_per_model``): five candidate poses of a 10 cm cube, the three
+    best-looking on one spot (the cube turned by its symmetries: the same surface), the other two on spots
+    10 and 20 cm away. Without targets (any number of instances) the three slots go to the three spots; with
+    one instance wanted, to the best spot's alternatives first, in look order, as before spots were counted."""
+    from types import SimpleNamespace
+
+    import trimesh
+    from scipy.spatial.transform import Rotation
+
+    from pcdet.detector import _spread_per_model
+
+    cube = trimesh.creation.box((0.1, 0.1, 0.1))
+    pts = trimesh.sample.sample_surface(cube, 300, seed=1)[0]
+    model = SimpleNamespace(model=SimpleNamespace(diameter=float(np.sqrt(3) * 0.1)), icp_points=pts)
+    poses, looks = {}, {}
+    for j, (rv, x, score) in enumerate([([0, 0, 0], 0.0, 0.99), ([np.pi / 2, 0, 0], 0.0, 0.98),
+                                        ([0, np.pi / 2, 0], 0.0, 0.97), ([0, 0, 0], 0.1, 0.90),
+                                        ([0, 0, 0], 0.2, 0.80)]):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_rotvec(rv).as_matrix()
+        T[:3, 3] = [x, 0, 0.8]
+        poses[j], looks[j] = T, SimpleNamespace(score=score)
+    hyps = [SimpleNamespace(model_index=0)] * 5
+    idx = list(range(5))
+    assert _spread_per_model(idx, looks, hyps, poses, [model], 3) == [0, 3, 4]
+    assert _spread_per_model(idx, looks, hyps, poses, [model], 3, {0: 1}) == [0, 1, 2]
+    assert _spread_per_model(idx, looks, hyps, poses, [model], 3, {0: 2}) == [0, 1, 3]

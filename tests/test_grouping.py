@@ -173,6 +173,40 @@ def test_distinct_poses_keeps_the_first_of_each_cluster_of_poses(rng):
         assert distinct_poses(T, order, 0.1, limit).tolist() == _distinct_one_by_one(T, order, 0.1, limit)
 
 
+def test_distinct_surfaces_counts_a_box_turned_over_on_one_spot_once():
+    """A 9 x 7 x 3 cm box at three poses on one spot that differ by its symmetries (turned 180 degrees about
+    each axis), the same box 12 cm away, and the box on the first spot turned 90 degrees about its 7 cm axis
+    (another surface there: its 3 cm side where the 9 cm side was, 17 mm from the first by ADD-S, against a
+    tolerance of a tenth of its 118 mm diameter). ``distinct_poses`` keeps all five;
+    ``distinct_surfaces`` keeps the first of the symmetric three, the far copy and the turned box, in order."""
+    import trimesh
+    from scipy.spatial.transform import Rotation
+
+    from pcdet.grouping.common import distinct_poses, distinct_surfaces
+
+    box = trimesh.creation.box((0.09, 0.07, 0.03))
+    pts = trimesh.sample.sample_surface(box, 400, seed=0)[0]
+    diameter = float(np.linalg.norm([0.09, 0.07, 0.03]))
+    base = np.eye(4)
+    base[:3, :3] = Rotation.from_euler("xyz", [20, -30, 40], degrees=True).as_matrix()
+    base[:3, 3] = [0.05, -0.02, 0.7]
+    T = []
+    for rv in ([0, 0, 0], [np.pi, 0, 0], [0, np.pi, 0]):
+        S = np.eye(4)
+        S[:3, :3] = Rotation.from_rotvec(rv).as_matrix()
+        T.append(base @ S)
+    far = base.copy()
+    far[:3, 3] += [0.12, 0, 0]
+    turned = np.eye(4)
+    turned[:3, :3] = Rotation.from_rotvec([0, np.pi / 2, 0]).as_matrix()
+    T = np.array(T + [far, base @ turned])
+    order = np.arange(5)
+    assert distinct_poses(T, order, diameter, 5).tolist() == [0, 1, 2, 3, 4]
+    assert distinct_surfaces(T, order, pts, diameter, 5).tolist() == [0, 3, 4]
+    assert distinct_surfaces(T, order[::-1], pts, diameter, 5).tolist() == [4, 3, 2]
+    assert distinct_surfaces(T, order, pts, diameter, 2).tolist() == [0, 3]
+
+
 def test_refit_batch_pulls_poses_onto_their_inliers_and_ignores_far_matches(rng):
     """Three starting poses 3-5 mm and 2 degrees off a true pose, 200 correct correspondences (0.5 mm noise)
     and 800 scattered wrong ones: each refit lands within 1 mm and 0.5 degree, and its inliers (within tau =
