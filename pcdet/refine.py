@@ -18,9 +18,11 @@ class RefineConfig:
     iterations: int = param(30, "ICP iterations at most")
     max_distance: float = param(0.012, "m; ICP correspondence distance")
     kernel: float = param(0.006, "m; Tukey kernel width of the point-to-plane residual")
-    max_per_model: int = param(3, "hypotheses per model refined fully by ICP (best after the coarse look first)")
-    candidates: int = param(12, "raw hypotheses per model (best first look first) given a short coarse ICP, "
-                                "after which the best max_per_model are refined fully (0: no coarse stage)")
+    max_per_model: int = param(3, "hypotheses per model refined fully by ICP (best after the coarse look first, "
+                                  "on distinct spots of the scene first, as many as instances are wanted)")
+    candidates: int = param(12, "raw hypotheses per model (best first look first, distinct spots first) given a "
+                                "short coarse ICP, after which the best max_per_model are refined fully (0: no "
+                                "coarse stage)")
     coarse_distance: float = param(0.03, "m; correspondence distance of the coarse ICP (then two thirds of it): "
                                          "raw poses 1-3 cm off come within the full ICP's reach")
     coarse_points: int = param(300, "model samples the coarse ICP moves (evenly taken from the ICP samples)")

@@ -54,12 +54,48 @@ def crowded(tmp_path_factory, library):
 @pytest.mark.slow
 def test_many_instances_among_distractors(crowded, library):
     """Issue 3: up to 3 copies of each of 3 objects plus 3 clutter shapes not in the library, no targets,
-    pipelines/crowded.toml: recall (ADD-S < 0.1 d) >= 0.8 and precision >= 0.9. Measured: 0.930 / 0.972 on
-    114 instances (structured-light sensor; 0.939 / 0.973 with single-precision FPFH; on the scenes before the
-    sensor got its own random stream, 0.870 / 0.980 on 115, and the default pipeline with per-detection
-    thresholds only 0.791 / 0.798)."""
+    pipelines/crowded.toml: recall (ADD-S < 0.1 d) >= 0.8 and precision >= 0.9. Measured: 0.956 / 0.973 on
+    114 instances (structured-light sensor; 0.930 / 0.972 before the ICP budget covered distinct spots first,
+    0.939 / 0.973 before that with single-precision FPFH; on the scenes before the sensor got its own random
+    stream, 0.870 / 0.980 on 115, and the default pipeline with per-detection thresholds only 0.791 / 0.798)."""
     ev = evaluate(crowded, _estimates(crowded, Detector(library, load_pipeline("crowded")), False), library,
                   with_vsd=False)
     assert ev.overall["instances"] == 114
     assert ev.overall["recall_adds"] >= 0.8, ev.overall
+    assert ev.overall["precision_adds"] >= 0.9, ev.overall
+
+
+@pytest.fixture(scope="module")
+def third_party(tmp_path_factory):
+    """scripts/bench_thirdparty.py's suite: 20 scenes, two of five meshes from ../shared/data (LINEMOD's cat,
+    the Stanford bunny, YCB-Video's two boxes and mug) with 1-3 copies each, 3 distractors, seed 2026."""
+    import importlib.util
+
+    from pcdet.library import ModelLibrary
+
+    from .conftest import ROOT, shared
+
+    for name in ("linemod_cat", "bunny", "ycbv_frame"):
+        shared(name)
+    spec = importlib.util.spec_from_file_location("bench_thirdparty", ROOT / "scripts" / "bench_thirdparty.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    out = tmp_path_factory.mktemp("thirdparty")
+    lib = ModelLibrary.from_folder(bench.third_party_models(out / "meshes"), cache_dir=False)
+    cfg = SynthConfig(scenes=20, objects=2, instances=3, distractors=3, seed=2026)
+    ds = BopDataset(synthesize(lib, out / "suite", cfg))
+    return ds, ModelLibrary.from_folder(out / "suite" / "models", cache_dir=False)
+
+
+@pytest.mark.slow
+@pytest.mark.real
+def test_many_instances_of_third_party_meshes(third_party):
+    """Issue 11: meshes pcdet's authors did not make, up to three copies each among distractors, the default
+    pipeline, no targets: recall (ADD-S < 0.1 d) >= 0.9 and precision >= 0.9 on 77 instances. Measured: 0.935
+    / 0.947 (0.883 / 0.944 before the ICP budget covered distinct spots first: the boxes' copies and their
+    turned-over poses took every slot); most misses and false detections are the boxes on distractor boxes."""
+    ds, lib = third_party
+    ev = evaluate(ds, _estimates(ds, Detector(lib), False), lib, with_vsd=False)
+    assert ev.overall["instances"] == 77
+    assert ev.overall["recall_adds"] >= 0.9, ev.overall
     assert ev.overall["precision_adds"] >= 0.9, ev.overall
