@@ -31,6 +31,19 @@ from pcdet.synth import SynthConfig, synthesize
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def detect_all(det: Detector, frames: list) -> tuple[list[dict], list[float]]:
+    """Run ``det`` on every ``(image, frame)`` of ``frames``, told nothing: the estimates as ``evaluate``
+    takes them, and the seconds each frame took."""
+    ests, times = [], []
+    for img, frame in frames:
+        t0 = time.perf_counter()
+        res = det.detect(frame)
+        times.append(time.perf_counter() - t0)
+        ests += [{"scene_id": img.scene_id, "im_id": img.im_id, "obj_id": d.obj_id, "score": d.score,
+                  "T_cam_model": d.T_cam_model} for d in res.detections]
+    return ests, times
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", type=int, default=20)
@@ -56,14 +69,7 @@ def main():
     for pipe in args.pipelines.split(","):
         for sel in args.selection.split(","):
             cfg = load_pipeline(pipe).replace(verify={"selection": sel})
-            det = Detector(lib, cfg)
-            ests, times = [], []
-            for img, frame in frames:
-                t0 = time.perf_counter()
-                res = det.detect(frame)
-                times.append(time.perf_counter() - t0)
-                ests += [{"scene_id": img.scene_id, "im_id": img.im_id, "obj_id": d.obj_id, "score": d.score,
-                          "T_cam_model": d.T_cam_model} for d in res.detections]
+            ests, times = detect_all(Detector(lib, cfg), frames)
             ov = evaluate(ds, ests, lib, with_vsd=False).overall
             rows.append((pipe, sel, ov["recall_adds"], ov["precision_adds"], ov["estimates"],
                          float(np.median(times))))

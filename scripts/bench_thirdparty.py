@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import shutil
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -80,6 +79,8 @@ def third_party_models(out: Path) -> Path:
 
 
 def main():
+    from bench_crowded import detect_all  # scripts/ is on the path when this file is run
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", type=int, default=20)
     ap.add_argument("--seed", type=int, default=2026)
@@ -104,14 +105,7 @@ def main():
     frames = [(img, ds.frame(img)) for img in ds]
     rows = []
     for pipe in args.pipelines.split(","):
-        det = Detector(lib, load_pipeline(pipe))
-        ests, times = [], []
-        for img, frame in frames:
-            t0 = time.perf_counter()
-            res = det.detect(frame)
-            times.append(time.perf_counter() - t0)
-            ests += [{"scene_id": img.scene_id, "im_id": img.im_id, "obj_id": d.obj_id, "score": d.score,
-                      "T_cam_model": d.T_cam_model} for d in res.detections]
+        ests, times = detect_all(Detector(lib, load_pipeline(pipe)), frames)
         ev = evaluate(ds, ests, lib, with_vsd=False)
         for oid, r in sorted(ev.per_object.items()):
             rows.append((pipe, lib[lib.index_of(oid)].name, r["instances"], r["estimates"], r["recall_adds"],
