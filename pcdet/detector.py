@@ -114,7 +114,7 @@ SURFACE_SAMPLES = 128  # model samples that tell two candidate poses' surfaces a
 
 
 def _spread_per_model(indices: list[int], looks, hyps: list[Hypothesis], poses: dict, models: list[PreparedModel],
-                      limit: int, spots: dict[int, int] | None = None) -> list[int]:
+                      limit: int, *, spots: dict[int, int] | None = None) -> list[int]:
     """Per model, up to ``limit`` of ``indices`` (into ``hyps``, posed at ``poses[j]``), best-looking first
     (``looks[j].score``, ties by index), none within 10 degrees and a fifth of the diameter of a better-looking
     one. The first ``spots[model index]`` (default: all ``limit``) are taken on distinct spots of the scene:
@@ -330,7 +330,7 @@ class Detector:
         if rc.candidates > 0:
             # raw poses on distinct spots first: near-copies of one pose would all slide to the same place,
             # and the budget would go to one instance of a crowded scene (or to one box turned every way)
-            coarse = _spread_per_model(plausible, pre, hyps, start, self.models, rc.candidates, spots)
+            coarse = _spread_per_model(plausible, pre, hyps, start, self.models, rc.candidates, spots=spots)
             with tm("refine"):
                 moved = self._map(lambda j: self._coarse_icp(self.models[hyps[j].model_index], scene,
                                                              hyps[j].T_scene_model), coarse)
@@ -346,7 +346,7 @@ class Detector:
                 trace.coarse = coarse
         # the full ICP for the best few per model, on distinct spots first; candidates that converged onto the
         # same pose are one (the best-looking of them)
-        keep = sorted(_spread_per_model(plausible, look, hyps, start, self.models, rc.max_per_model, spots))
+        keep = sorted(_spread_per_model(plausible, look, hyps, start, self.models, rc.max_per_model, spots=spots))
         if trace is not None:
             trace.first_look, trace.refined = pre, keep
         hyps_all, hyps = hyps, [hyps[j] for j in keep]

@@ -112,5 +112,5 @@ def test_refinement_budget_covers_distinct_spots_first():
     hyps = [SimpleNamespace(model_index=0)] * 5
     idx = list(range(5))
     assert _spread_per_model(idx, looks, hyps, poses, [model], 3) == [0, 3, 4]
-    assert _spread_per_model(idx, looks, hyps, poses, [model], 3, {0: 1}) == [0, 1, 2]
-    assert _spread_per_model(idx, looks, hyps, poses, [model], 3, {0: 2}) == [0, 1, 3]
+    assert _spread_per_model(idx, looks, hyps, poses, [model], 3, spots={0: 1}) == [0, 1, 2]
+    assert _spread_per_model(idx, looks, hyps, poses, [model], 3, spots={0: 2}) == [0, 1, 3]
