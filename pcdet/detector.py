@@ -110,7 +110,7 @@ class Refinement:
     detection: Detection | None = None
 
 
-SURFACE_SAMPLES = 128  # model samples that tell two candidate poses' surfaces apart (_distinct_per_model)
+SURFACE_SAMPLES = 128  # model samples that tell two candidate poses' surfaces apart (_spread_per_model)
 
 
 def _spread_per_model(indices: list[int], looks, hyps: list[Hypothesis], poses: dict, models: list[PreparedModel],

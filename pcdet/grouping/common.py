@@ -164,36 +164,24 @@ def distinct_poses(T: np.ndarray, order: np.ndarray, diameter: float, limit: int
 
 def distinct_surfaces(T: np.ndarray, order, points: np.ndarray, diameter: float, limit: int, *,
                       fraction: float = 0.1) -> np.ndarray:
-    """The first ``limit`` entries of ``order`` (indices into T (B, 4, 4)) that differ from every earlier kept
-    one both as poses (``distinct_poses``' rule) and as placed surfaces: the model samples ``points`` (M, 3)
-    placed by one must lie a mean of ``fraction * diameter`` or more from their closest samples placed by the
-    other (the ADD-S distance). So poses that differ by a symmetry of the object (a box turned over, a can
-    turned about its axis) are one: they put the same surface on the same spot of the scene."""
+    """The first ``limit`` entries of ``order`` (indices into T (B, 4, 4)) whose placed surface differs from that
+    of every earlier kept one: the model samples ``points`` (M, 3) placed by one lie a mean of ``fraction *
+    diameter`` or more from their closest samples placed by the other (the ADD-S distance). So poses that
+    differ by a symmetry of the object (a box turned over, a can turned about its axis) are one: they put the
+    same surface on the same spot of the scene, where ``distinct_poses`` keeps them apart."""
     order = np.asarray(order, np.int64)
-    if len(order) == 0:
-        return order
     tol = fraction * diameter
-    R, t = T[order, :3, :3], T[order, :3, 3]
-    P = np.einsum("bij,mj->bmi", R, points) + t[:, None, :]  # (len(order), M, 3)
+    P = np.einsum("bij,mj->bmi", T[order, :3, :3], points) + T[order, None, :3, 3]  # (len(order), M, 3)
     c = P.mean(axis=1)
-    cos_rel = (np.einsum("aij,bij->ab", R, R) - 1) / 2
-    dt2 = np.sum((t[:, None, :] - t[None, :, :]) ** 2, axis=2)
-    pose_near = (cos_rel > np.cos(np.radians(10))) & (dt2 < (0.2 * diameter) ** 2)
     kept: list[int] = []
     for a in range(len(order)):
-        same = False
-        for b in kept:
-            if pose_near[a, b]:
-                same = True
-            elif np.sum((c[a] - c[b]) ** 2) < tol * tol:
-                d2 = np.sum((P[a][:, None, :] - P[b][None, :, :]) ** 2, axis=2)
-                same = bool(np.sqrt(d2.min(axis=1)).mean() < tol)
-            if same:
-                break
-        if not same:
-            kept.append(a)
-            if len(kept) >= limit:
-                break
+        if any(np.sum((c[a] - c[b]) ** 2) < tol * tol  # centroids apart: surfaces apart, no closer look needed
+               and np.sqrt(np.sum((P[a][:, None, :] - P[b][None, :, :]) ** 2, axis=2).min(axis=1)).mean() < tol
+               for b in kept):
+            continue
+        kept.append(a)
+        if len(kept) >= limit:
+            break
     return order[kept]
 
 
