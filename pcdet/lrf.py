@@ -37,9 +37,10 @@ def shot_lrf(points: np.ndarray, keypoints: np.ndarray, radius: float, tree: cKD
     idx = np.concatenate([np.asarray(n, np.int64) for n in nb]) if counts.sum() else np.zeros(0, np.int64)
     diff = points[idx] - keypoints[owner]
     w = radius - np.linalg.norm(diff, axis=1)
-    outer = (diff[:, :, None] * diff[:, None, :]) * w[:, None, None]
     M = np.zeros((K, 3, 3))
-    np.add.at(M, owner, outer)
+    for a in range(3):  # the weighted covariance, one bincount per entry of its upper triangle
+        for b in range(a, 3):
+            M[:, a, b] = M[:, b, a] = np.bincount(owner, weights=(diff[:, a] * diff[:, b]) * w, minlength=K)
     wsum = np.bincount(owner, weights=w, minlength=K)
     valid = (counts >= min_neighbours) & (wsum > 0)
     M[valid] /= wsum[valid, None, None]
@@ -54,9 +55,8 @@ def shot_lrf(points: np.ndarray, keypoints: np.ndarray, radius: float, tree: cKD
     d = diff[sel]
     for axis in (x, z):
         proj = (d * axis[o]).sum(axis=1)
-        plus = np.bincount(o, weights=(proj >= 0).astype(float), minlength=len(vi))
-        minus = np.bincount(o, weights=(proj < 0).astype(float), minlength=len(vi))
-        axis[plus < minus] *= -1
+        lead = np.bincount(o, weights=np.where(proj >= 0, 1.0, -1.0), minlength=len(vi))  # (non-negative) - (negative)
+        axis[lead < 0] *= -1
     y = np.cross(z, x)
     frames[valid] = np.stack([x, y, z], axis=1)
     frames[~valid] = np.nan
