@@ -31,6 +31,8 @@ if TYPE_CHECKING:
     from ..scene import SceneKeypoints
     from . import GroupingConfig
 
+DENSE_CELLS = 4_000_000  # the vote grid is dense up to this many cells (32 MB), sparse beyond
+
 
 @dataclass(frozen=True)
 class HoughConfig:
@@ -123,33 +125,45 @@ def _about_normal(F: np.ndarray, normals: np.ndarray) -> np.ndarray:
 
 
 def _vote_peaks(centre: np.ndarray, b: float, min_votes: float) -> list[tuple[np.ndarray, float]]:
-    """Trilinear votes of the points ``centre`` (N, 3) into a sparse grid of cell ``b`` m; the cells that are
-    maxima of their 26-neighbourhood with at least ``min_votes``, strongest first, as (cell index (3,), votes)."""
+    """Trilinear votes of the points ``centre`` (N, 3) into a grid of cell ``b`` m; the cells that are maxima of
+    their 26-neighbourhood with at least ``min_votes``, strongest first (ties by cell index), as (cell index (3,),
+    votes). The grid is dense over the votes' bounding box when that has at most ``DENSE_CELLS`` cells, else
+    sparse; both give the same peaks."""
+    if len(centre) == 0:
+        return []
     g = centre / b - 0.5
     base = np.floor(g).astype(np.int64)
     frac = g - base
-    keys, weights = [], []
+    lo = base.min(axis=0) - 1  # a margin of one empty cell on every side
+    span = base.max(axis=0) - lo + 3
+    rel = base - lo
+    code = (rel[:, 0] * span[1] + rel[:, 1]) * span[2] + rel[:, 2]
+    codes, weights = [], []
     for dx in (0, 1):
         for dy in (0, 1):
             for dz in (0, 1):
-                w = (np.where(dx, frac[:, 0], 1 - frac[:, 0]) * np.where(dy, frac[:, 1], 1 - frac[:, 1])
-                     * np.where(dz, frac[:, 2], 1 - frac[:, 2]))
-                keys.append(base + [dx, dy, dz])
-                weights.append(w)
-    cells = np.concatenate(keys)
-    # one int64 key per cell (a 1-D unique is far faster than unique rows)
-    lo = cells.min(axis=0)
-    span = cells.max(axis=0) - lo + 1
-    code = ((cells[:, 0] - lo[0]) * span[1] + (cells[:, 1] - lo[1])) * span[2] + (cells[:, 2] - lo[2])
-    ucode, inv = np.unique(code, return_inverse=True)
-    uniq = np.column_stack([ucode // (span[1] * span[2]), ucode // span[2] % span[1], ucode % span[2]]) + lo
-    votes = np.bincount(inv.reshape(-1), weights=np.concatenate(weights))
-    lookup = {tuple(c): v for c, v in zip(uniq.tolist(), votes)}
-    offsets = [(i, j, l) for i in (-1, 0, 1) for j in (-1, 0, 1) for l in (-1, 0, 1) if (i, j, l) != (0, 0, 0)]
-    peaks = []
-    for c, v in sorted(zip(map(tuple, uniq.tolist()), votes), key=lambda x: (-x[1], x[0])):
-        if v < min_votes:
-            break
-        if all(lookup.get((c[0] + i, c[1] + j, c[2] + l), 0.0) <= v for i, j, l in offsets):
-            peaks.append((np.array(c, float), v))
-    return peaks
+                codes.append(code + (dx * span[1] + dy) * span[2] + dz)
+                weights.append(np.where(dx, frac[:, 0], 1 - frac[:, 0]) * np.where(dy, frac[:, 1], 1 - frac[:, 1])
+                               * np.where(dz, frac[:, 2], 1 - frac[:, 2]))
+    codes, weights = np.concatenate(codes), np.concatenate(weights)
+    # a neighbour's code differs by one of these (the margin keeps every voted cell's neighbours in the box)
+    steps = np.array([(i * span[1] + j) * span[2] + l for i in (-1, 0, 1) for j in (-1, 0, 1) for l in (-1, 0, 1)
+                      if (i, j, l) != (0, 0, 0)])
+    if int(np.prod(span)) <= DENSE_CELLS:
+        votes = np.bincount(codes, weights=weights, minlength=int(np.prod(span)))
+        cand = np.flatnonzero(votes >= min_votes)
+        v = votes[cand]
+        is_peak = np.all(votes[cand[:, None] + steps[None, :]] <= v[:, None], axis=1)
+    else:
+        ucode, inv = np.unique(codes, return_inverse=True)
+        votes = np.bincount(inv.reshape(-1), weights=weights)
+        keep = votes >= min_votes
+        cand, v = ucode[keep], votes[keep]
+        nb = cand[:, None] + steps[None, :]
+        pos = np.minimum(np.searchsorted(ucode, nb), len(ucode) - 1)
+        nbv = np.where(ucode[pos] == nb, votes[pos], 0.0)
+        is_peak = np.all(nbv <= v[:, None], axis=1)
+    cand, v = cand[is_peak], v[is_peak]
+    order = np.lexsort((cand, -v))  # strongest first; the code orders cells as their index tuples do
+    cells = np.column_stack([cand // (span[1] * span[2]), cand // span[2] % span[1], cand % span[2]]) + lo
+    return [(cells[o].astype(float), float(v[o])) for o in order]
