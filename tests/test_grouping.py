@@ -130,6 +130,72 @@ def test_hough_votes_recover_pose(library, rng):
     assert ok >= 9, f"{ok}/10 trials within 2 degrees and 1 cm"
 
 
+def test_hough_spin_votes_recover_pose_when_the_lrf_x_axes_do_not_repeat(library, rng):
+    """As above, but each scene frame turned about its normal by a uniformly random angle (the LRF's x axis
+    carries no information; on real cat frames the frames of correct matches differ by a median 64 degrees), 95 % outliers. Voting
+    along the circle about the normal (``spin``, the default) recovers the pose within 2 degrees and 1 cm in at
+    least 8 of 10 trials; voting with the x axis alone in at most 5 (over seeds 0-5: 9-10 against 0-4)."""
+    from scipy.spatial.transform import Rotation
+
+    m = library[0]
+    good = np.flatnonzero(~np.isnan(m.kp_lrfs[:, 0, 0]))
+    ok = {True: 0, False: 0}
+    for _ in range(10):
+        idx = rng.choice(good, 300, replace=False)
+        T = random_pose(rng, 0.2)
+        T[2, 3] += 0.8
+        S = m.kp_points[idx] @ T[:3, :3].T + T[:3, 3] + rng.normal(0, 0.001, (300, 3))
+        N = m.kp_normals[idx] @ T[:3, :3].T
+        F = m.kp_lrfs[idx] @ T[:3, :3].T
+        turn = Rotation.from_rotvec(F[:, 2] * rng.uniform(-np.pi, np.pi, (300, 1))).as_matrix()
+        F = np.einsum("nij,nkj->nki", turn, F)  # each row (axis) turned about the frame's z
+        cand = idx.copy()
+        bad = rng.random(300) < 0.95
+        cand[bad] = rng.choice(good, bad.sum())
+        for spin in (True, False):
+            hyps = _group("hough", m, S, N, cand[:, None], lrfs=F, hough={"spin": spin})
+            E = hyps[0].T_scene_model if hyps else np.eye(4)
+            ok[spin] += rotation_error_deg(E[:3, :3], T[:3, :3]) < 2 and np.linalg.norm(E[:3, 3] - T[:3, 3]) < 0.01
+    assert ok[True] >= 8 and ok[False] <= 5, f"within 2 degrees and 1 cm: spin {ok[True]}/10, x axis {ok[False]}/10"
+
+
+def test_hough_spin_keeps_the_x_axis_vote_where_the_frames_repeat(library):
+    """Frames that repeat (the model's own, 5 degrees of jitter), 5000 correspondences of which 99 % are wrong
+    (about 50 correct), 20 trials: the circle of votes alone lifts the background, and the extra weight of the x
+    axis's own vote (``x_weight``, 3 by default) keeps the correct peak on top. With it the pose is recovered
+    within 2 degrees and 1 cm in at least 18 of 20 trials, and in no fewer than without it (seeds 0-3: 19-20
+    against 17-19; ``scripts/bench_grouping.py --n 5000``, 30 trials: 0.97 with it, 0.80 without, 1.00 when
+    voting with the x axis alone)."""
+    from scipy.spatial.transform import Rotation
+
+    m = library[0]
+    good = np.flatnonzero(~np.isnan(m.kp_lrfs[:, 0, 0]))
+    rng, n, trials = np.random.default_rng(0), 5000, []
+    for _ in range(20):
+        idx = rng.choice(good, n, replace=True)
+        T = np.eye(4)
+        T[:3, :3] = Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
+        T[:3, 3] = rng.normal(0, 0.1, 3) + [0, 0, 0.8]
+        S = m.kp_points[idx] @ T[:3, :3].T + T[:3, 3] + rng.normal(0, 0.001, (n, 3))
+        N = m.kp_normals[idx] @ T[:3, :3].T
+        axis = rng.normal(size=(n, 3))
+        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+        jitter = Rotation.from_rotvec(axis * np.radians(5) * rng.normal(size=(n, 1))).as_matrix()
+        F = m.kp_lrfs[idx] @ T[:3, :3].T @ np.transpose(jitter, (0, 2, 1))
+        cand = idx.copy()
+        bad = rng.random(n) < 0.99
+        cand[bad] = rng.choice(good, bad.sum())
+        trials.append((T, S, N, F, cand))
+    found = {}
+    for w in (3.0, 0.0):
+        found[w] = 0
+        for T, S, N, F, cand in trials:
+            hyps = _group("hough", m, S, N, cand[:, None], lrfs=F, hough={"x_weight": w})
+            E = hyps[0].T_scene_model if hyps else np.eye(4)
+            found[w] += rotation_error_deg(E[:3, :3], T[:3, :3]) < 2 and np.linalg.norm(E[:3, 3] - T[:3, 3]) < 0.01
+    assert found[3.0] >= 18 and found[3.0] >= found[0.0], f"of 20 trials: x_weight 3 {found[3.0]}, 0 {found[0.0]}"
+
+
 def test_hough_vote_peaks_dense_and_sparse_grids_agree(rng, monkeypatch):
     """The vote grid is dense over a small bounding box and sparse over a large one: both give the same peaks
     and vote sums (exactly), strongest first, for clustered and scattered votes."""

@@ -185,6 +185,18 @@ def distinct_surfaces(T: np.ndarray, order, points: np.ndarray, diameter: float,
     return order[kept]
 
 
+def pose_distances(T: np.ndarray, cm: np.ndarray, cs: np.ndarray) -> np.ndarray:
+    """(B, M) distances (m) between the model points ``cm`` (M, 3) placed by each pose T (B, 4, 4) and their
+    scene points ``cs`` (M, 3). One product per coordinate keeps every array (B, M) and contiguous."""
+    mh = np.vstack([cm.T, np.ones(len(cm))])  # (4, M) homogeneous model points
+    e = T[:, 0, :] @ mh - cs[:, 0]
+    d2 = e * e
+    for i in (1, 2):
+        e = T[:, i, :] @ mh - cs[:, i]
+        d2 += e * e
+    return np.sqrt(d2)
+
+
 def refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tuple[np.ndarray, list[np.ndarray]]:
     """Robust refit of B poses (B, 4, 4) on correspondences (model cm -> scene cs, (M, 3) each): Tukey-weighted
     Kabsch with the kernel shrinking from ``tau`` to ``tau / 2``, so that wrong matches that happen to fall
@@ -193,22 +205,12 @@ def refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tu
     The weighting rounds see only the correspondences within ``3 tau`` of some starting pose (the others are
     far outside every kernel); the inliers are taken among all of them."""
     T = T.copy()
-
-    def dist(T, cm, cs):  # (B, M): one product per coordinate keeps every array (B, M) and contiguous
-        mh = np.vstack([cm.T, np.ones(len(cm))])  # (4, M) homogeneous model points
-        e = T[:, 0, :] @ mh - cs[:, 0]
-        d2 = e * e
-        for i in (1, 2):
-            e = T[:, i, :] @ mh - cs[:, i]
-            d2 += e * e
-        return np.sqrt(d2)
-
-    d = dist(T, cm, cs)
+    d = pose_distances(T, cm, cs)
     near = np.flatnonzero((d < 3 * tau).any(axis=0))
     sm, ss, d = cm[near], cs[near], d[:, near]
     for n, scale in enumerate((1.0, 1.0, 0.75, 0.5, 0.5)):
         if n:
-            d = dist(T, sm, ss)
+            d = pose_distances(T, sm, ss)
         c = tau * scale
         inside = d < c
         ok = inside.sum(axis=1) >= 3
@@ -216,7 +218,7 @@ def refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tu
             break
         w = np.where(inside[ok], (1 - (d[ok] / c) ** 2) ** 2, 0.0) + 1e-12
         T[ok] = kabsch_shared(sm, ss, w)
-    d = dist(T, cm, cs)
+    d = pose_distances(T, cm, cs)
     return T, [np.flatnonzero(row < tau) for row in d]
 
 

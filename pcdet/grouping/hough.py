@@ -5,12 +5,26 @@ correspondence (scene keypoint s with frame F_s, model keypoint m with frame F_m
 reference point lies in the scene: s + F_s^T F_m (c - m), and for the rotation F_s^T F_m. A frame's z axis is
 the keypoint's oriented normal (toward the camera in the scene, outward on the model) and its x axis the SHOT
 frame's x made perpendicular to it: on real frames SHOT's own z sign flips on 19-47 % of the correct matches
-(6 LINEMOD cat frames), where most normals agree within 20 degrees. Votes go into a 3D grid with trilinear
-interpolation; every local maximum with at least ``min_votes`` is a candidate. Its voters (correspondences whose
-predicted reference point falls within one bin of the peak) are then required to agree on the rotation too,
-which makes the grouping 6-DoF: the voter whose rotation has the most others within ``rotation_tol_deg`` (among
-at most 64 evenly spaced voters) anchors the group, the group is fitted by robust Kabsch, and candidates that
-describe the same instance are merged (largest first). Deterministic: no random draws.
+(6 LINEMOD cat frames), where most normals agree within 20 degrees.
+
+The x axis repeats far worse: on the correct matches of every 4th real cat frame, the two frames (z from the
+normals) differ by a median of 64 degrees, most of it about the normal, which throws most correct votes out of
+the peak. With ``spin`` (the default) a correspondence
+therefore votes along the whole circle its reference point can lie on when only the normals are trusted: the
+offset turned about the normal, with votes about one bin apart. The first is the x axis's own vote, and it
+weighs ``1 + x_weight``: where the x axes do repeat (clean scans), those votes still make the peak. Each peak's
+voters then take the turn that brings their reference point nearest the peak, so a correct match's rotation is
+off by its normal's error only.
+
+Votes go into a 3D grid with trilinear interpolation; every local maximum with at least ``min_votes`` is a
+candidate. Its voters (correspondences whose predicted reference point falls within 1.5 bins of the peak) are
+then required to agree on the rotation too, which makes the grouping 6-DoF: the voter whose rotation has the
+most others within ``rotation_tol_deg`` (among at most 64 evenly spaced voters) anchors a group, fitted by
+Kabsch. Up to ``rotations_per_peak`` groups are taken from one peak, each from the voters that disagree with the
+earlier ones by more than twice the tolerance: a part that looks alike turned over puts a wrong rotation and the
+true one on the same spot. The ``4 * max_groups`` candidates with the most matches within ``inlier_distance``
+are refit robustly, and those that describe the same instance are merged (most inliers first). Deterministic:
+no random draws.
 """
 from __future__ import annotations
 
@@ -21,9 +35,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..align import kabsch
+from ..errors import ConfigError
 from ..matching import Candidates
 from ..params import check_positive, param
-from .common import correspondence_points, distinct_poses, refit_batch
+from .common import correspondence_points, distinct_poses, pose_distances, refit_batch
 from .hypothesis import Hypothesis
 
 if TYPE_CHECKING:
@@ -42,9 +57,14 @@ class HoughConfig:
     min_votes: float = param(4.0, "votes a Hough peak needs (trilinear weights)")
     rotation_tol_deg: float = param(20.0, "degrees; a peak's voters must agree on the rotation within this")
     max_groups: int = param(12, "hypotheses kept per model, most inliers first")
+    spin: bool = param(True, "vote along the circle of turns about each normal (the LRF's x axis is not trusted)")
+    rotations_per_peak: int = param(3, "rotation groups taken from one vote peak, largest first")
+    x_weight: float = param(3.0, "with spin: extra weight of the vote the LRF's own x axis casts")
 
     def __post_init__(self):
-        check_positive(self, "bin", "min_votes", "rotation_tol_deg", "max_groups")
+        check_positive(self, "bin", "min_votes", "rotation_tol_deg", "max_groups", "rotations_per_peak")
+        if self.x_weight < 0:
+            raise ConfigError(f"HoughConfig.x_weight must be >= 0, got {self.x_weight}")
 
 
 class HoughGrouper:
@@ -67,45 +87,68 @@ class HoughGrouper:
         flat = cand.reshape(-1)
         corr = np.flatnonzero(flat >= 0)
         si, mi = corr // k, flat[corr]
-        ok = ~np.isnan(scene_lrf[si, 0, 0]) & ~np.isnan(model_lrf[mi, 0, 0])
-        corr, si, mi = corr[ok], si[ok], mi[ok]
+        if not c.spin:  # the x axis decides the vote: it must exist
+            ok = ~np.isnan(scene_lrf[si, 0, 0]) & ~np.isnan(model_lrf[mi, 0, 0])
+            corr, si, mi = corr[ok], si[ok], mi[ok]
         if len(corr) < min_inl:
             return []
         # z from the oriented normals, x from SHOT (see the module docstring)
         Fs, Fm = _about_normal(scene_lrf[si], scene.normals[si]), _about_normal(model_lrf[mi], m.kp_normals[mi])
+        if c.spin:  # x only places the first vote on the circle: any x where SHOT gives none
+            Fs, Fm = _fill_x(Fs, scene.normals[si]), _fill_x(Fm, m.kp_normals[mi])
         ok = ~np.isnan(Fs[:, 0, 0]) & ~np.isnan(Fm[:, 0, 0])
         corr, si, mi, Fs, Fm = corr[ok], si[ok], mi[ok], Fs[ok], Fm[ok]
         if len(corr) < min_inl:
             return []
         local = np.einsum("nij,nj->ni", Fm, model.reference - model_pts[mi])  # offset in the model keypoint's frame
-        centre = scene.points[si] + np.einsum("nji,nj->ni", Fs, local)  # back to the scene: F_s^T local
-        rot = np.einsum("nji,njk->nik", Fs, Fm)  # F_s^T F_m: model frame -> scene frame
-        peaks = _vote_peaks(centre, c.bin, c.min_votes)
+        if c.spin:
+            owner, Rz = _spin(local, c.bin)  # vote -> correspondence, and the vote's turn of the scene frame
+            Fv = np.einsum("nij,njk->nik", Rz, Fs[owner])
+        else:
+            owner, Fv = np.arange(len(corr)), Fs
+        centre = scene.points[si[owner]] + np.einsum("nji,nj->ni", Fv, local[owner])  # back to the scene: F^T local
+        weight = None
+        if c.spin:  # the vote at the LRF's own x counts more: where the x axis repeats, its votes make the peak
+            weight = np.ones(len(owner))
+            weight[np.r_[True, owner[1:] != owner[:-1]]] += c.x_weight
+        peaks = _vote_peaks(centre, c.bin, c.min_votes, weight)
         if not peaks:
             return []
         tree = cKDTree(centre)
-        cos_tol = np.cos(np.radians(c.rotation_tol_deg))
+        cos_tol, cos_apart = np.cos(np.radians(c.rotation_tol_deg)), np.cos(np.radians(2 * c.rotation_tol_deg))
         cands, group_sizes = [], []
         for cell, _ in peaks[: 4 * c.max_groups]:
             # voters: predicted reference points near the peak (grid index c sits at (c + 0.5) * bin)
-            voters = np.array(tree.query_ball_point((cell + 0.5) * c.bin, 1.5 * c.bin), dtype=np.int64)
+            peak = (cell + 0.5) * c.bin
+            votes = np.array(tree.query_ball_point(peak, 1.5 * c.bin), dtype=np.int64)
+            voters = np.unique(owner[votes])  # correspondences
             if len(voters) < min_inl:
                 continue
-            Rv = rot[voters]
+            # each voter's rotation, model frame -> scene frame: F_s^T F_m, with F_s turned to the peak under spin
+            Fp = _turn_towards(Fs[voters], local[voters], scene.points[si[voters]], peak) if c.spin else Fs[voters]
+            Rv = np.einsum("nji,njk->nik", Fp, Fm[voters])
             # anchor candidates: all voters, or an evenly spaced 64 of them when there are more (deterministic)
             anchors = np.unique(np.linspace(0, len(voters) - 1, min(len(voters), 64)).astype(np.int64))
             cosang = (np.einsum("aij,bij->ab", Rv[anchors], Rv) - 1) / 2  # cos of the relative rotations
-            agree = cosang > cos_tol
-            group = voters[agree[int(np.argmax(agree.sum(axis=1)))]]
-            if len(np.unique(si[group])) < min_inl:
-                continue
-            cands.append(kabsch(model_pts[mi[group]], scene.points[si[group]]))
-            group_sizes.append(len(group))
+            agree, free = cosang > cos_tol, np.ones(len(voters), bool)
+            for _ in range(c.rotations_per_peak):
+                a = int(np.argmax((agree & free).sum(axis=1)))
+                group = voters[agree[a] & free]
+                if len(np.unique(si[group])) < min_inl:
+                    break
+                cands.append(kabsch(model_pts[mi[group]], scene.points[si[group]]))
+                group_sizes.append(len(group))
+                free &= cosang[a] <= cos_apart  # the next group turns well away from this one
         if not cands:
             return []
         cs, cm = correspondence_points(scene.points, cand, model_pts)
         valid = np.flatnonzero(flat >= 0)
-        T, inls = refit_batch(np.array(cands), cm[valid], cs[valid], self.common.inlier_distance)
+        cands, tau = np.array(cands), self.common.inlier_distance
+        if len(cands) > 4 * c.max_groups:  # the robust refit is for the poses that already explain most matches
+            count = (pose_distances(cands, cm[valid], cs[valid]) < tau).sum(axis=1)
+            best = np.sort(np.lexsort((np.arange(len(count)), -count))[: 4 * c.max_groups])
+            cands, group_sizes = cands[best], [group_sizes[i] for i in best]
+        T, inls = refit_batch(cands, cm[valid], cs[valid], tau)
         size = np.array([len(np.unique(valid[i] // k)) for i in inls])
         order = np.lexsort((np.arange(len(size)), -size))
         order = order[size[order] >= min_inl]
@@ -124,8 +167,52 @@ def _about_normal(F: np.ndarray, normals: np.ndarray) -> np.ndarray:
     return out
 
 
-def _vote_peaks(centre: np.ndarray, b: float, min_votes: float) -> list[tuple[np.ndarray, float]]:
-    """Trilinear votes of the points ``centre`` (N, 3) into a grid of cell ``b`` m; the cells that are maxima of
+def _fill_x(F: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """``F`` (n, 3, 3) with its NaN frames replaced by the frame about the unit normal whose x is the world axis
+    least aligned with it (projected)."""
+    bad = np.isnan(F[:, 0, 0])
+    if not bad.any():
+        return F
+    z = normals[bad] / np.linalg.norm(normals[bad], axis=1, keepdims=True)
+    e = np.eye(3)[np.argmin(np.abs(z), axis=1)]
+    x = e - (e * z).sum(axis=1, keepdims=True) * z
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    F = F.copy()
+    F[bad] = np.stack([x, np.cross(z, x), z], axis=1)
+    return F
+
+
+def _turn_towards(F: np.ndarray, local: np.ndarray, s: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """The frames ``F`` (n, 3, 3) turned about their z so that ``s + F'^T local`` (s, local: (n, 3)) comes
+    nearest to ``target`` (3,)."""
+    q = np.einsum("nij,nj->ni", F, target - s)
+    theta = np.arctan2(q[:, 1], q[:, 0]) - np.arctan2(local[:, 1], local[:, 0])
+    c, sn = np.cos(theta), np.sin(theta)
+    Rz = np.zeros((len(F), 3, 3))
+    Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, sn, -sn, c, 1.0
+    return np.einsum("nij,njk->nik", Rz, F)
+
+
+def _spin(local: np.ndarray, b: float) -> tuple[np.ndarray, np.ndarray]:
+    """Votes around the circle: for each offset ``local`` (n, 3, in its keypoint's frame), angles about the
+    frame's z evenly spaced so that neighbouring votes lie about ``b`` m apart (at least one, at most 64; the
+    first at angle 0). Returns ``(owner (V,), Rz (V, 3, 3))``: the offset each vote belongs to and the turn,
+    such that the turned scene frame is ``Rz @ F_s``."""
+    r = np.hypot(local[:, 0], local[:, 1])
+    n = np.clip(np.ceil(2 * np.pi * r / b), 1, 64).astype(np.int64)
+    owner = np.repeat(np.arange(len(local)), n)
+    start = np.cumsum(n) - n
+    theta = 2 * np.pi * (np.arange(len(owner)) - start[owner]) / n[owner]
+    c, s = np.cos(theta), np.sin(theta)
+    Rz = np.zeros((len(owner), 3, 3))
+    Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, s, -s, c, 1.0
+    return owner, Rz
+
+
+def _vote_peaks(centre: np.ndarray, b: float, min_votes: float, weight: np.ndarray | None = None
+                ) -> list[tuple[np.ndarray, float]]:
+    """Trilinear votes of the points ``centre`` (N, 3), each of ``weight`` (N,; default 1), into a grid of cell
+    ``b`` m; the cells that are maxima of
     their 26-neighbourhood with at least ``min_votes``, strongest first (ties by cell index), as (cell index (3,),
     votes). The grid is dense over the votes' bounding box when that has at most ``DENSE_CELLS`` cells, else
     sparse; both give the same peaks."""
@@ -143,8 +230,9 @@ def _vote_peaks(centre: np.ndarray, b: float, min_votes: float) -> list[tuple[np
         for dy in (0, 1):
             for dz in (0, 1):
                 codes.append(code + (dx * span[1] + dy) * span[2] + dz)
-                weights.append(np.where(dx, frac[:, 0], 1 - frac[:, 0]) * np.where(dy, frac[:, 1], 1 - frac[:, 1])
-                               * np.where(dz, frac[:, 2], 1 - frac[:, 2]))
+                w = (np.where(dx, frac[:, 0], 1 - frac[:, 0]) * np.where(dy, frac[:, 1], 1 - frac[:, 1])
+                     * np.where(dz, frac[:, 2], 1 - frac[:, 2]))
+                weights.append(w if weight is None else w * weight)
     codes, weights = np.concatenate(codes), np.concatenate(weights)
     # a neighbour's code differs by one of these (the margin keeps every voted cell's neighbours in the box)
     steps = np.array([(i * span[1] + j) * span[2] + l for i in (-1, 0, 1) for j in (-1, 0, 1) for l in (-1, 0, 1)
