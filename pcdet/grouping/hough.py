@@ -38,7 +38,7 @@ from ..align import kabsch
 from ..errors import ConfigError
 from ..matching import Candidates
 from ..params import check_positive, param
-from .common import correspondence_points, distinct_poses, pose_distances, refit_batch
+from .common import correspondence_points, distinct_poses, pose_distances, ramp, refit_batch
 from .hypothesis import Hypothesis
 
 if TYPE_CHECKING:
@@ -187,10 +187,7 @@ def _turn_towards(F: np.ndarray, local: np.ndarray, s: np.ndarray, target: np.nd
     nearest to ``target`` (3,)."""
     q = np.einsum("nij,nj->ni", F, target - s)
     theta = np.arctan2(q[:, 1], q[:, 0]) - np.arctan2(local[:, 1], local[:, 0])
-    c, sn = np.cos(theta), np.sin(theta)
-    Rz = np.zeros((len(F), 3, 3))
-    Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, sn, -sn, c, 1.0
-    return np.einsum("nij,njk->nik", Rz, F)
+    return np.einsum("nij,njk->nik", _turns(theta), F)
 
 
 def _spin(local: np.ndarray, b: float) -> tuple[np.ndarray, np.ndarray]:
@@ -201,12 +198,16 @@ def _spin(local: np.ndarray, b: float) -> tuple[np.ndarray, np.ndarray]:
     r = np.hypot(local[:, 0], local[:, 1])
     n = np.clip(np.ceil(2 * np.pi * r / b), 1, 64).astype(np.int64)
     owner = np.repeat(np.arange(len(local)), n)
-    start = np.cumsum(n) - n
-    theta = 2 * np.pi * (np.arange(len(owner)) - start[owner]) / n[owner]
+    return owner, _turns(2 * np.pi * ramp(n) / n[owner])
+
+
+def _turns(theta: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) turns of a frame about its own z by ``theta`` (n,) radians: row x of ``Rz @ F`` is
+    cos(theta) x + sin(theta) y."""
     c, s = np.cos(theta), np.sin(theta)
-    Rz = np.zeros((len(owner), 3, 3))
+    Rz = np.zeros((len(theta), 3, 3))
     Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, s, -s, c, 1.0
-    return owner, Rz
+    return Rz
 
 
 def _vote_peaks(centre: np.ndarray, b: float, min_votes: float, weight: np.ndarray | None = None
