@@ -132,9 +132,10 @@ def test_hough_votes_recover_pose(library, rng):
 
 def test_hough_spin_votes_recover_pose_when_the_lrf_x_axes_do_not_repeat(library, rng):
     """As above, but each scene frame turned about its normal by a uniformly random angle (the LRF's x axis
-    carries no information; on real cat frames the frames of correct matches differ by a median 64 degrees), 95 % outliers. Voting
-    along the circle about the normal (``spin``, the default) recovers the pose within 2 degrees and 1 cm in at
-    least 8 of 10 trials; voting with the x axis alone in at most 5 (over seeds 0-5: 9-10 against 0-4)."""
+    carries no information; on real cat frames the frames of correct matches differ by a median 64 degrees),
+    95 % outliers. Voting along the circle about the normal (``spin``, the default) recovers the pose within 2
+    degrees and 1 cm in at least 8 of 10 trials; voting with the x axis alone in at most 5 (over seeds 0-5: 9-10
+    against 0-4)."""
     from scipy.spatial.transform import Rotation
 
     m = library[0]

@@ -104,13 +104,11 @@ class HoughGrouper:
         if c.spin:
             owner, Rz = _spin(local, c.bin)  # vote -> correspondence, and the vote's turn of the scene frame
             Fv = np.einsum("nij,njk->nik", Rz, Fs[owner])
+            # the vote at the LRF's own x (each correspondence's first) counts more: where x repeats, it makes the peak
+            weight = 1.0 + c.x_weight * np.r_[True, owner[1:] != owner[:-1]]
         else:
-            owner, Fv = np.arange(len(corr)), Fs
+            owner, Fv, weight = np.arange(len(corr)), Fs, None
         centre = scene.points[si[owner]] + np.einsum("nji,nj->ni", Fv, local[owner])  # back to the scene: F^T local
-        weight = None
-        if c.spin:  # the vote at the LRF's own x counts more: where the x axis repeats, its votes make the peak
-            weight = np.ones(len(owner))
-            weight[np.r_[True, owner[1:] != owner[:-1]]] += c.x_weight
         peaks = _vote_peaks(centre, c.bin, c.min_votes, weight)
         if not peaks:
             return []
