@@ -34,7 +34,7 @@ def fpfh(points: np.ndarray, normals: np.ndarray, keypoints: np.ndarray, cfg: Fe
     Parameters
     ----------
     points, normals : (N, 3) float64, metres / unit vectors.
-    keypoints : (K,) int64 indices into ``points``.
+    keypoints : (K,) int64 indices into ``points``, in any order (repeats allowed).
 
     Returns
     -------
@@ -45,10 +45,16 @@ def fpfh(points: np.ndarray, normals: np.ndarray, keypoints: np.ndarray, cfg: Fe
 
     if len(keypoints) == 0:
         return np.zeros((0, 33), np.float32)
+    keypoints = np.asarray(keypoints, dtype=np.int64)
+    # open3d returns the descriptors of the points in increasing index order, whatever order they are asked in
+    order = np.argsort(keypoints, kind="stable")
+    uniq, back = np.unique(keypoints[order], return_inverse=True)
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
     pc.normals = o3d.utility.Vector3dVector(np.asarray(normals, dtype=np.float64))
     # open3d's legacy implementation in double precision: 20 % faster than its tensor one, which works in float32
     f = o3d.pipelines.registration.compute_fpfh_feature(
-        pc, o3d.geometry.KDTreeSearchParamHybrid(radius=float(cfg.radius), max_nn=int(cfg.max_nn)),
-        np.asarray(keypoints, dtype=np.int64).tolist())
-    return np.asarray(f.data, dtype=np.float32).T.copy()
+        pc, o3d.geometry.KDTreeSearchParamHybrid(radius=float(cfg.radius), max_nn=int(cfg.max_nn)), uniq.tolist())
+    feats = np.asarray(f.data, dtype=np.float32).T
+    out = np.empty((len(keypoints), 33), np.float32)
+    out[order] = feats[back]
+    return out

@@ -42,6 +42,18 @@ def test_fpfh_at_keypoints_equals_open3d_on_the_whole_cloud():
     np.testing.assert_allclose(ours, np.asarray(ref.data).T[kp], atol=1e-4)  # float32 rounding only
 
 
+def test_fpfh_rows_follow_the_keypoints_in_the_order_given():
+    """Open3D returns the descriptors of the requested points in increasing index order; ``fpfh`` gives row i to
+    ``keypoints[i]`` whatever the order, repeats included (exactly the rows of the sorted request)."""
+    pts, nrm = _cube_samples()
+    cfg = FeatureConfig(radius=0.02, max_nn=60)
+    kp = np.arange(3, len(pts), 53)
+    ref = fpfh(pts, nrm, kp, cfg)
+    perm = np.random.default_rng(1).permutation(len(kp))
+    np.testing.assert_array_equal(fpfh(pts, nrm, kp[perm], cfg), ref[perm])
+    np.testing.assert_array_equal(fpfh(pts, nrm, kp[[4, 0, 4, 2]], cfg), ref[[4, 0, 4, 2]])
+
+
 def test_fpfh_tells_a_corner_from_a_face():
     """Two keypoints at the middle of two faces describe alike; a corner keypoint differs from both by more
     than five times as much."""
