@@ -248,6 +248,9 @@ class Detector:
                 view = scene.keypoints_at(step, min_step=spacing)
                 rows = cands[pm.index].rows(view.index)
                 has = (rows.model >= 0).any(axis=1)
+                cap = cfg.grouping.max_keypoints
+                if cap and has.sum() > cap:  # a bounded share of a large scene: where it most resembles the model
+                    has = rows.nearest_rows(cap)
                 if not has.all():  # keypoints left without a candidate (by colour) take no part in grouping
                     view, rows = view.subset(has), Candidates(rows.model[has], rows.distance[has])
                 return self.grouper.group(view, pm, rows, np.random.default_rng(seeds[pm.index]),

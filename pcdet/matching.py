@@ -67,6 +67,17 @@ class Candidates:
         """The candidates of the scene keypoints ``index`` only (a ``SceneKeypoints`` view's ``index``)."""
         return Candidates(self.model[index], self.distance[index])
 
+    def nearest_rows(self, n: int) -> np.ndarray:
+        """(S,) bool: the ``n`` scene keypoints whose candidates are nearest in FPFH space (smallest mean distance
+        over their candidates; ties by keypoint order). Keypoints without a candidate are never among them."""
+        valid = self.model >= 0
+        count = valid.sum(axis=1)
+        mean = np.where(valid, self.distance, 0.0).sum(axis=1) / np.maximum(count, 1)
+        order = np.argsort(np.where(count > 0, mean, np.inf), kind="stable")[:n]
+        keep = np.zeros(len(self.model), bool)
+        keep[order[count[order] > 0]] = True
+        return keep
+
 
 def match_features(scene_features: np.ndarray, model_features: np.ndarray, cfg: MatchingConfig, *,
                    model_tree: cKDTree | None = None, workers: int = 1, scene_colours: np.ndarray | None = None,

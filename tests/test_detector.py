@@ -64,6 +64,22 @@ def test_linemod_cat_real_frames_default_and_hough():
     assert found["default"] >= 9 and found["hough"] >= 8, f"of {len(frames)} frames: {found}"
 
 
+def test_grouping_sees_at_most_max_keypoints_per_model(synth_small, library):
+    """``grouping.max_keypoints`` bounds the scene keypoints each model's grouper works on (the cost of a large
+    or depth-only scene); 0 leaves them all."""
+    ds = BopDataset(synth_small)
+    f = ds.frame(ds.images[0])
+    seen = {}
+    for cap in (0, 40):
+        det = Detector(library, PipelineConfig(seed=4).replace(grouping={"max_keypoints": cap}), workers=1)
+        group = det.grouper.group
+        sizes = []
+        det.grouper.group = lambda view, *a, **kw: sizes.append(len(view.points)) or group(view, *a, **kw)
+        det.detect(f, ds.targets(ds.images[0]))
+        seen[cap] = sizes
+    assert max(seen[0]) > 40 and max(seen[40]) == 40, seen
+
+
 def test_same_result_twice(synth_small, library):
     ds = BopDataset(synth_small)
     f = ds.frame(ds.images[0])

@@ -2,7 +2,7 @@
 import numpy as np
 
 from pcdet.config import MatchingConfig
-from pcdet.matching import match_features
+from pcdet.matching import Candidates, match_features
 
 
 def test_k_nearest_includes_the_true_match(rng):
@@ -116,3 +116,14 @@ def test_library_search_on_principal_components():
     assert np.mean(i12[:, 0] == i0[:, 0]) >= 0.98
     assert (np.diff(d12, axis=1) >= 0).all()
     np.testing.assert_allclose(d12, np.linalg.norm(index.tree.data[i12] - q[:, None], axis=2), rtol=1e-9)
+
+
+def test_nearest_rows_keeps_the_keypoints_whose_candidates_are_nearest():
+    """The n rows with the smallest mean candidate distance (missing candidates left out of the mean); a row
+    without any candidate is never kept, ties go to the earlier row."""
+    model = np.array([[0, 1], [2, -1], [-1, -1], [3, 4], [5, 6]])
+    distance = np.array([[1.0, 3.0], [1.5, np.inf], [np.inf, np.inf], [0.5, 0.6], [2.0, 2.0]])
+    c = Candidates(model, distance)
+    assert list(np.flatnonzero(c.nearest_rows(2))) == [1, 3]  # means 2.0, 1.5, -, 0.55, 2.0
+    assert list(np.flatnonzero(c.nearest_rows(3))) == [0, 1, 3]  # row 0 before row 4 at the same mean
+    assert list(np.flatnonzero(c.nearest_rows(10))) == [0, 1, 3, 4]

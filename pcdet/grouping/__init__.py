@@ -56,12 +56,16 @@ class GroupingCommon:
     inlier_distance: float = param(0.01, "m; a correspondence within this of the posed model point is an inlier")
     min_inliers: int = param(5, "distinct scene keypoints a hypothesis needs")
     grid_per_diameter: float = param(12.0, "scene keypoints used for grouping are at least diameter / this apart")
+    max_keypoints: int = param(1500, "scene keypoints each model groups at most: those whose candidates are nearest in "
+                                  "FPFH space (0: all)")
 
     def __post_init__(self):
         if self.method not in GROUPERS:
             raise ConfigError(f"grouping method {self.method!r} is not available; choose one of "
                               f"{', '.join(repr(k) for k in GROUPERS)}")
         check_positive(self, "inlier_distance", "min_inliers", "grid_per_diameter")
+        if self.max_keypoints < 0:
+            raise ConfigError(f"GroupingConfig.max_keypoints must be >= 0, got {self.max_keypoints}")
 
 
 # the shared fields plus one nested section per registered grouper: a new grouper needs no edit here
