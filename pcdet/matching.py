@@ -22,6 +22,8 @@ class MatchingConfig:
                                      "(3 (r, g) / (r + g + b); grey is (1, 1)); 0: colour unused")
     colour_pool: int = param(16, "with colour: the k candidates are the first that pass the gate among this many "
                                  "nearest in FPFH space")
+    eps: float = param(0.5, "approximate nearest neighbours: the r-th candidate found is at most (1 + eps) times "
+                            "as far as the true r-th nearest (KD-tree search, deterministic; 0: exact)")
     library_pool: int = param(0, "when several models are searched: one descriptor index over all of them, and "
                                   "each model's candidates are its first k among this many nearest over the "
                                   "library (0: each model matched on its own)")
@@ -37,6 +39,8 @@ class MatchingConfig:
         if not 0 <= self.library_dims <= 33:
             raise ConfigError(f"MatchingConfig.library_dims must be in 0..33 (0: exact search), got "
                               f"{self.library_dims}")
+        if self.eps < 0:
+            raise ConfigError(f"MatchingConfig.eps must be >= 0 (0: exact search), got {self.eps}")
         if self.colour_gate < 0:
             raise ConfigError(f"MatchingConfig.colour_gate must be >= 0 (0 disables it), got {self.colour_gate}")
         if not 0 < self.ratio <= 1:
@@ -98,7 +102,8 @@ def match_features(scene_features: np.ndarray, model_features: np.ndarray, cfg: 
     gate = cfg.colour_gate > 0 and scene_colours is not None and model_colours is not None
     k = min(cfg.k if cfg.ratio >= 1 else 2, D)
     pool = min(max(cfg.colour_pool, k), D) if gate else k
-    dist, idx = tree.query(scene_features, k=pool, workers=workers)  # exact search: same on any thread count
+    # each query on its own: the same on any thread count
+    dist, idx = tree.query(scene_features, k=pool, eps=cfg.eps, workers=workers)
     dist, idx = dist.reshape(S, pool), idx.reshape(S, pool).astype(np.int64)
     if gate:
         dist, idx = _colour_gate(dist, idx, scene_colours, model_colours, cfg.colour_gate, k)

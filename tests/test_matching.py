@@ -118,6 +118,20 @@ def test_library_search_on_principal_components():
     np.testing.assert_allclose(d12, np.linalg.norm(index.tree.data[i12] - q[:, None], axis=2), rtol=1e-9)
 
 
+def test_approximate_search_stays_within_its_bound(rng):
+    """With ``eps`` the r-th candidate is at most (1 + eps) times as far as the true r-th nearest; eps = 0 is the
+    exact search (brute force here)."""
+    model = rng.random((3000, 33))
+    scene = rng.random((300, 33))
+    exact = np.sort(np.linalg.norm(scene[:, None] - model[None], axis=2), axis=1)[:, :8]
+    c0 = match_features(scene, model, MatchingConfig(k=8, eps=0.0, colour_gate=0.0))
+    np.testing.assert_allclose(c0.distance, exact, rtol=1e-9)
+    c = match_features(scene, model, MatchingConfig(k=8, eps=0.5, colour_gate=0.0), workers=2)
+    assert (c.distance <= 1.5 * exact + 1e-12).all() and (c.distance >= exact - 1e-12).all()
+    c1 = match_features(scene, model, MatchingConfig(k=8, eps=0.5, colour_gate=0.0), workers=1)
+    np.testing.assert_array_equal(c.model, c1.model)  # each query on its own: the same on any thread count
+
+
 def test_nearest_rows_keeps_the_keypoints_whose_candidates_are_nearest():
     """The n rows with the smallest mean candidate distance (missing candidates left out of the mean); a row
     without any candidate is never kept, ties go to the earlier row."""
