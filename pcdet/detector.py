@@ -30,7 +30,7 @@ from .matching import Candidates, LibraryIndex, match_features, match_library
 from .prepared_model import PreparedModel
 from .preprocess import preprocess
 from .refine import RefineConfig, RegistrationResult, icp
-from .scene import Scene
+from .scene import Scene, SceneKeypoints
 from .verify import Verification, bbox_pixels, resolve_conflicts, verify
 
 
@@ -222,6 +222,12 @@ class Detector:
         seeds = np.random.SeedSequence(cfg.seed).spawn(len(self.library))
         spacing = self.keypoint_spacing(models) if cfg.keypoints.method == "voxel" else cfg.keypoints.spacing
         mc = cfg.matching
+
+        def view_of(pm: PreparedModel) -> SceneKeypoints:
+            # large models need no denser grid of scene points than diameter / grid_per_diameter
+            step = max(cfg.keypoints.spacing, pm.model.diameter / cfg.grouping.grid_per_diameter)
+            return scene.keypoints_at(step, min_step=spacing)
+
         with tm("matching"):
             if len(models) > 1 and mc.library_pool > 0 and mc.ratio >= 1 and not mc.mutual:
                 # one search over the library: a model gets candidates only where the scene resembles it
@@ -229,10 +235,16 @@ class Detector:
                                       scene_colours=scene.colours)
                 cands = {pm.index: c for pm, c in zip(models, found)}
             else:
-                cands = {pm.index: match_features(scene.descriptors, pm.model.features, mc,
-                                                  model_tree=pm.descriptor_tree, workers=self.workers,
-                                                  scene_colours=scene.colours, model_colours=pm.colours)
-                         for pm in models}
+                cands = {}
+                for pm in models:
+                    # only the keypoints the model groups are matched (each query is independent); with the
+                    # mutual test every keypoint is, since it asks which scene keypoint is nearest
+                    rows = np.arange(len(scene.keypoints)) if mc.mutual else view_of(pm).index
+                    colours = None if scene.colours is None else scene.colours[rows]
+                    found = match_features(scene.descriptors[rows], pm.model.features, mc,
+                                           model_tree=pm.descriptor_tree, workers=self.workers,
+                                           scene_colours=colours, model_colours=pm.colours)
+                    cands[pm.index] = found.placed(rows, len(scene.keypoints))
         if self.grouper.needs_lrfs:
             with tm("lrf"):  # only keypoints with a candidate take part in grouping
                 used = np.zeros(len(scene.keypoints), bool)
@@ -243,9 +255,7 @@ class Detector:
             trace.candidates = cands
         with tm("grouping"):
             def group(pm: PreparedModel) -> list[Hypothesis]:
-                # large models need no denser grid of scene points than diameter / grid_per_diameter
-                step = max(cfg.keypoints.spacing, pm.model.diameter / cfg.grouping.grid_per_diameter)
-                view = scene.keypoints_at(step, min_step=spacing)
+                view = view_of(pm)
                 rows = cands[pm.index].rows(view.index)
                 has = (rows.model >= 0).any(axis=1)
                 cap = cfg.grouping.max_keypoints

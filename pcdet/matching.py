@@ -71,6 +71,14 @@ class Candidates:
         """The candidates of the scene keypoints ``index`` only (a ``SceneKeypoints`` view's ``index``)."""
         return Candidates(self.model[index], self.distance[index])
 
+    def placed(self, index: np.ndarray, n: int) -> "Candidates":
+        """This table's rows as the rows ``index`` of a table over ``n`` scene keypoints; the others get no
+        candidate."""
+        model = np.full((n, self.k), -1, np.int64)
+        distance = np.full((n, self.k), np.inf)
+        model[index], distance[index] = self.model, self.distance
+        return Candidates(model, distance)
+
     def nearest_rows(self, n: int) -> np.ndarray:
         """(S,) bool: the ``n`` scene keypoints whose candidates are nearest in FPFH space (smallest mean distance
         over their candidates; ties by keypoint order). Keypoints without a candidate are never among them."""
