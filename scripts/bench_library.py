@@ -9,11 +9,18 @@ every other detection (another model, a scaled cat, a cat elsewhere) is a false 
 Prints per library: recall (frames whose cat is found), precision (correct detections / all), median seconds
 per frame, and the 40 / 8 time ratio.
 
+``--targets``: every model of the library is given as a target, one instance each (BOP localisation, as on an
+LM-O frame with its 8 objects named): the cost of searching that many given objects in one real frame. Only the
+cat is in view, so precision is not meaningful there (each target keeps its best pose). ``--depth-only``: the
+colour images are dropped (LM-O's test frames are used without colour).
+
 Run:  python scripts/bench_library.py [--data ../shared/data/linemod_cat] [--frames 20] [--pipeline default]
+                                      [--targets] [--depth-only] [--only 8]
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import shutil
 import tempfile
@@ -65,7 +72,7 @@ def build_libraries(data: Path, out: Path) -> tuple[Path, Path]:
     return libs[0], libs[1]
 
 
-def run(folder: Path, rec, refs, pipeline: str) -> dict:
+def run(folder: Path, rec, refs, pipeline: str, targets: bool = False, depth_only: bool = False) -> dict:
     cfg = load_pipeline(pipeline)
     t0 = time.perf_counter()
     lib = ModelLibrary.from_folder(folder, cfg)
@@ -75,9 +82,11 @@ def run(folder: Path, rec, refs, pipeline: str) -> dict:
     times, found, correct, total = [], 0, 0, 0
     for ref in refs:
         frame = rec.frame(ref)
+        if depth_only:
+            frame = dataclasses.replace(frame, rgb=None)
         T_gt = next(g["T_cam_model"] for g in rec.gt(ref) if g["obj_id"] == 6)
         t = time.perf_counter()
-        res = det.detect(frame)
+        res = det.detect(frame, {m.obj_id: 1 for m in lib} if targets else None)
         times.append(time.perf_counter() - t)
         ok = [d.obj_id == 6 and add(d.T_cam_model, T_gt, cat.points) < 0.1 * cat.diameter for d in res.detections]
         found += any(ok)
@@ -92,6 +101,9 @@ def main():
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data" / "linemod_cat")
     ap.add_argument("--frames", type=int, default=20, help="first N frames (0: all)")
     ap.add_argument("--pipeline", default="default")
+    ap.add_argument("--targets", action="store_true", help="give every library model as a target (one each)")
+    ap.add_argument("--depth-only", action="store_true", help="drop the colour images")
+    ap.add_argument("--only", type=int, choices=(8, 40), default=None, help="run one library only")
     args = ap.parse_args()
     rec = open_recording(args.data)
     refs = list(rec)
@@ -100,13 +112,15 @@ def main():
     try:
         lib8, lib40 = build_libraries(args.data, tmp)
         rows = []
-        for folder in (lib8, lib40):
-            rows.append(run(folder, rec, refs, args.pipeline))
+        for folder in [f for f, n in ((lib8, 8), (lib40, 40)) if args.only in (None, n)]:
+            rows.append(run(folder, rec, refs, args.pipeline, args.targets, args.depth_only))
             print(f"{rows[-1]['models']} models: recall {rows[-1]['recall']:.3f}, precision "
                   f"{rows[-1]['precision']:.3f}, median {rows[-1]['median_s']:.2f} s/frame", flush=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    print(f"\n{len(refs)} real frames of {args.data.name}, no targets, pipeline {args.pipeline}\n")
+    given = "every model given as a target" if args.targets else "no targets"
+    colour = ", depth only" if args.depth_only else ""
+    print(f"\n{len(refs)} real frames of {args.data.name}, {given}{colour}, pipeline {args.pipeline}\n")
     print("| models | recall | precision | detections | median s/frame | time / 8 models | model build s |")
     print("|---|---|---|---|---|---|---|")
     for r in rows:
