@@ -1,6 +1,7 @@
 """The ``pcdet`` command. The only place that prints progress or exits; the library returns and raises."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 import time
@@ -452,6 +453,8 @@ def diagnose(dataset: Path = typer.Argument(..., help="BOP dataset with ground t
              limit: int = typer.Option(0, help="Diagnose only the first N frames (0: all)."),
              units: str = typer.Option("auto", help="Model units."),
              json_out: Optional[Path] = typer.Option(None, "--json", help="Write every instance's diagnosis."),
+             depth_only: bool = typer.Option(False, "--depth-only", help="Drop the colour images (as in LM-O's "
+                                             "depth-only evaluation)."),
              ):
     """Attribute every ground-truth instance to the stage that found or lost it (pcdet.diagnose)."""
     from .datasets.bop import BopDataset
@@ -476,7 +479,10 @@ def diagnose(dataset: Path = typer.Argument(..., help="BOP dataset with ground t
     with _progress(detections=False, rate=True) as prog:
         task = prog.add_task("diagnosing", total=len(refs))
         for ref in refs:
-            rows += diagnose_frame(det, ds.frame(ref), ds.gt(ref), ds.targets(ref) if targets == "gt" else None,
+            frame = ds.frame(ref)
+            if depth_only:
+                frame = dataclasses.replace(frame, rgb=None)
+            rows += diagnose_frame(det, frame, ds.gt(ref), ds.targets(ref) if targets == "gt" else None,
                                    metric=metric, scene_id=ref.scene_id, im_id=ref.im_id)
             prog.update(task, advance=1)
     diag = Diagnosis(rows)

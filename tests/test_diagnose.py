@@ -47,3 +47,21 @@ def test_a_crippled_matcher_is_blamed_on_generation(synth_small, tmp_path):
     missed = [r for r in doc["instances"] if r["stage"] != "found"]
     assert missed, "the crippled pipeline should miss some instances"
     assert all(r["stage"] in ("generation", "keypoints", "first look") for r in missed)
+
+
+def test_depth_only_drops_the_colour_images(synth_small, tmp_path, monkeypatch):
+    """``--depth-only`` hands the detector every frame without its colour image (LM-O's depth-only setting); without
+    it the synthetic frames keep theirs."""
+    import pcdet.diagnose as diagnose
+
+    seen = []
+    real = diagnose.diagnose_frame
+
+    def spy(det, frame, *a, **kw):
+        seen.append(frame.rgb is None)
+        return real(det, frame, *a, **kw)
+
+    monkeypatch.setattr(diagnose, "diagnose_frame", spy)
+    _diagnose(synth_small, tmp_path / "a.json", "--limit", "1")
+    _diagnose(synth_small, tmp_path / "b.json", "--limit", "1", "--depth-only")
+    assert seen == [False, True]
