@@ -120,15 +120,17 @@ def test_library_search_on_principal_components():
 
 def test_approximate_search_stays_within_its_bound(rng):
     """With ``eps`` the r-th candidate is at most (1 + eps) times as far as the true r-th nearest; eps = 0 is the
-    exact search (brute force here)."""
+    exact search (brute force here). On uniform 33-D data a KD-tree prunes little, so eps = 2 is used to show that
+    the setting reaches the search: many lists then differ from the exact ones, all within the bound."""
     model = rng.random((3000, 33))
     scene = rng.random((300, 33))
     exact = np.sort(np.linalg.norm(scene[:, None] - model[None], axis=2), axis=1)[:, :8]
     c0 = match_features(scene, model, MatchingConfig(k=8, eps=0.0, colour_gate=0.0))
     np.testing.assert_allclose(c0.distance, exact, rtol=1e-9)
-    c = match_features(scene, model, MatchingConfig(k=8, eps=0.5, colour_gate=0.0), workers=2)
-    assert (c.distance <= 1.5 * exact + 1e-12).all() and (c.distance >= exact - 1e-12).all()
-    c1 = match_features(scene, model, MatchingConfig(k=8, eps=0.5, colour_gate=0.0), workers=1)
+    c = match_features(scene, model, MatchingConfig(k=8, eps=2.0, colour_gate=0.0), workers=2)
+    assert (np.abs(c.distance - exact) > 1e-12).any(axis=1).mean() > 0.2  # measured: 0.58 of the lists
+    assert (c.distance <= 3.0 * exact + 1e-12).all()
+    c1 = match_features(scene, model, MatchingConfig(k=8, eps=2.0, colour_gate=0.0), workers=1)
     np.testing.assert_array_equal(c.model, c1.model)  # each query on its own: the same on any thread count
 
 
