@@ -217,6 +217,31 @@ def test_hough_vote_peaks_dense_and_sparse_grids_agree(rng, monkeypatch):
         assert np.linalg.norm((dense[0][0] + 0.5) * 0.02 - centre) < 0.02  # the cluster is the strongest peak
 
 
+def test_hough_spun_votes_and_peak_neighbourhoods(rng):
+    """Spin votes: each reference point equals the one from the scene frame turned about its z explicitly
+    (F' = Rz F, s + F'^T local; 1e-12 m). Voters: the votes kept for the peaks' ball queries include every vote
+    within 1.5 bins of a peak (the search is exact, not approximate) and leave out most far ones."""
+    import pcdet.grouping.hough as hough
+    from scipy.spatial.transform import Rotation
+
+    n = 300
+    F = Rotation.random(n, random_state=1).as_matrix()
+    s, local = rng.normal(0, 0.2, (n, 3)), rng.normal(0, 0.05, (n, 3))
+    owner, theta = hough._spin(local, 0.01)
+    explicit = s[owner] + np.einsum("nji,nj->ni", np.einsum("nij,njk->nik", hough._turns(theta), F[owner]),
+                                    local[owner])
+    np.testing.assert_allclose(hough._spun_centres(s, F, local, owner, theta), explicit, rtol=0, atol=1e-12)
+    b = 0.015
+    votes = np.concatenate([rng.normal(0, 0.3, (20000, 3)), rng.normal(0.1, 0.01, (500, 3))])
+    cells = np.array([cell for cell, _ in hough._vote_peaks(votes, b, 2.0)[:12]])
+    near = hough._near_cells(votes, b, cells)
+    within = np.zeros(len(votes), bool)
+    for cell in cells:
+        within |= np.linalg.norm(votes - (cell + 0.5) * b, axis=1) <= 1.5 * b
+    assert within.sum() > 300 and np.isin(np.flatnonzero(within), near).all()
+    assert len(near) < 0.2 * len(votes)
+
+
 def test_every_registered_grouper_has_its_config_section_and_protocol():
     """The registry drives the config: each grouper's Config is the [grouping.<name>] section, its defaults are
     the code's, and the built grouper answers the protocol."""

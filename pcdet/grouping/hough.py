@@ -102,23 +102,25 @@ class HoughGrouper:
             return []
         local = np.einsum("nij,nj->ni", Fm, model.reference - model_pts[mi])  # offset in the model keypoint's frame
         if c.spin:
-            owner, Rz = _spin(local, c.bin)  # vote -> correspondence, and the vote's turn of the scene frame
-            Fv = np.einsum("nij,njk->nik", Rz, Fs[owner])
+            owner, theta = _spin(local, c.bin)  # vote -> correspondence, and the vote's turn of the scene frame
+            centre = _spun_centres(scene.points[si], Fs, local, owner, theta)
             # the vote at the LRF's own x (each correspondence's first) counts more: where x repeats, it makes the peak
             weight = 1.0 + c.x_weight * np.r_[True, owner[1:] != owner[:-1]]
         else:
-            owner, Fv, weight = np.arange(len(corr)), Fs, None
-        centre = scene.points[si[owner]] + np.einsum("nji,nj->ni", Fv, local[owner])  # back to the scene: F^T local
+            owner, weight = np.arange(len(corr)), None
+            centre = scene.points[si] + np.einsum("nji,nj->ni", Fs, local)  # back to the scene: F^T local
         peaks = _vote_peaks(centre, c.bin, c.min_votes, weight)
         if not peaks:
             return []
-        tree = cKDTree(centre)
+        used = peaks[: 4 * c.max_groups]
+        near = _near_cells(centre, c.bin, np.array([cell for cell, _ in used]))  # votes that can be within 1.5 bins
+        tree = cKDTree(centre[near])
         cos_tol, cos_apart = np.cos(np.radians(c.rotation_tol_deg)), np.cos(np.radians(2 * c.rotation_tol_deg))
         cands, group_sizes = [], []
-        for cell, _ in peaks[: 4 * c.max_groups]:
+        for cell, _ in used:
             # voters: predicted reference points near the peak (grid index c sits at (c + 0.5) * bin)
             peak = (cell + 0.5) * c.bin
-            votes = np.array(tree.query_ball_point(peak, 1.5 * c.bin), dtype=np.int64)
+            votes = near[np.array(tree.query_ball_point(peak, 1.5 * c.bin), dtype=np.int64)]
             voters = np.unique(owner[votes])  # correspondences
             if len(voters) < min_inl:
                 continue
@@ -191,12 +193,24 @@ def _turn_towards(F: np.ndarray, local: np.ndarray, s: np.ndarray, target: np.nd
 def _spin(local: np.ndarray, b: float) -> tuple[np.ndarray, np.ndarray]:
     """Votes around the circle: for each offset ``local`` (n, 3, in its keypoint's frame), angles about the
     frame's z evenly spaced so that neighbouring votes lie about ``b`` m apart (at least one, at most 64; the
-    first at angle 0). Returns ``(owner (V,), Rz (V, 3, 3))``: the offset each vote belongs to and the turn,
-    such that the turned scene frame is ``Rz @ F_s``."""
+    first at angle 0). Returns ``(owner (V,), theta (V,))``: the offset each vote belongs to and the turn of
+    the scene frame about its z (radians; the turned frame is ``_turns(theta) @ F_s``)."""
     r = np.hypot(local[:, 0], local[:, 1])
     n = np.clip(np.ceil(2 * np.pi * r / b), 1, 64).astype(np.int64)
     owner = np.repeat(np.arange(len(local)), n)
-    return owner, _turns(2 * np.pi * ramp(n) / n[owner])
+    return owner, 2 * np.pi * ramp(n) / n[owner]
+
+
+def _spun_centres(s: np.ndarray, F: np.ndarray, local: np.ndarray, owner: np.ndarray, theta: np.ndarray
+                  ) -> np.ndarray:
+    """(V, 3) reference points voted for: ``s + F'^T local`` of the correspondence ``owner`` (V,) with its frame
+    turned about z by ``theta`` (V,), for scene points s (n, 3), frames F (n, 3, 3) and offsets local (n, 3).
+    With F' = Rz F this is ``s + cos(theta) a + sin(theta) b + z l_z``, where a = x l_x + y l_y and
+    b = y l_x - x l_y: three (n, 3) terms per correspondence instead of a (3, 3) product per vote."""
+    x, y, z = F[:, 0], F[:, 1], F[:, 2]
+    lx, ly, lz = local[:, :1], local[:, 1:2], local[:, 2:]
+    a, b, c = x * lx + y * ly, y * lx - x * ly, s + z * lz
+    return c[owner] + np.cos(theta)[:, None] * a[owner] + np.sin(theta)[:, None] * b[owner]
 
 
 def _turns(theta: np.ndarray) -> np.ndarray:
@@ -206,6 +220,22 @@ def _turns(theta: np.ndarray) -> np.ndarray:
     Rz = np.zeros((len(theta), 3, 3))
     Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, s, -s, c, 1.0
     return Rz
+
+
+def _near_cells(centre: np.ndarray, b: float, cells: np.ndarray) -> np.ndarray:
+    """Indices of the votes ``centre`` (V, 3) whose grid cell (as ``_vote_peaks`` indexes them) is one that a
+    point within 1.5 ``b`` of some peak (``cells`` (P, 3), at (cell + 0.5) * b) can fall in: the cells from
+    peak - 2 to peak + 1 on each axis. Only these can be a peak's voters."""
+    base = np.floor(centre / b - 0.5).astype(np.int64)
+    offsets = np.array([(i, j, l) for i in range(-2, 2) for j in range(-2, 2) for l in range(-2, 2)])
+    block = (cells.astype(np.int64)[:, None, :] + offsets[None]).reshape(-1, 3)
+    lo = np.minimum(base.min(axis=0), block.min(axis=0))
+    span = np.maximum(base.max(axis=0), block.max(axis=0)) - lo + 1
+
+    def code(x):
+        return ((x[:, 0] - lo[0]) * span[1] + x[:, 1] - lo[1]) * span[2] + x[:, 2] - lo[2]
+
+    return np.flatnonzero(np.isin(code(base), code(block)))
 
 
 def _vote_peaks(centre: np.ndarray, b: float, min_votes: float, weight: np.ndarray | None = None
@@ -225,12 +255,13 @@ def _vote_peaks(centre: np.ndarray, b: float, min_votes: float, weight: np.ndarr
     rel = base - lo
     code = (rel[:, 0] * span[1] + rel[:, 1]) * span[2] + rel[:, 2]
     codes, weights = [], []
+    side = [(1 - frac[:, i], frac[:, i]) for i in range(3)]  # each axis's weight toward the lower, upper cell
     for dx in (0, 1):
         for dy in (0, 1):
+            wxy = side[0][dx] * side[1][dy]
             for dz in (0, 1):
                 codes.append(code + (dx * span[1] + dy) * span[2] + dz)
-                w = (np.where(dx, frac[:, 0], 1 - frac[:, 0]) * np.where(dy, frac[:, 1], 1 - frac[:, 1])
-                     * np.where(dz, frac[:, 2], 1 - frac[:, 2]))
+                w = wxy * side[2][dz]
                 weights.append(w if weight is None else w * weight)
     codes, weights = np.concatenate(codes), np.concatenate(weights)
     # a neighbour's code differs by one of these (the margin keeps every voted cell's neighbours in the box)
