@@ -211,7 +211,7 @@ class Detector:
         with tm("features"):
             feats = fpfh(cloud.points, cloud.normals, kp, cfg.features)
         return Scene(cloud.points, cloud.normals, cloud.labels, cloud.plane, kp, feats,
-                     lrf_radius=cfg.features.lrf_support, colours=colours)
+                     lrf_radius=cfg.features.lrf_support, colours=colours, workers=self.workers)
 
     def _hypotheses(self, scene: Scene, models: list[PreparedModel], tm: _Timer, trace: Trace | None = None
                     ) -> list[Hypothesis]:

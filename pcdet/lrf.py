@@ -13,12 +13,13 @@ from scipy.spatial import cKDTree
 
 
 def shot_lrf(points: np.ndarray, keypoints: np.ndarray, radius: float, tree: cKDTree | None = None,
-             min_neighbours: int = 8) -> tuple[np.ndarray, np.ndarray]:
+             min_neighbours: int = 8, *, workers: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """SHOT local reference frames.
 
     Parameters
     ----------
     points : (N, 3) cloud (m); keypoints : (K, 3) positions (m) to describe; radius : support radius (m).
+    workers : threads of the neighbour search (each keypoint's neighbours are the same for any number).
 
     Returns
     -------
@@ -31,12 +32,12 @@ def shot_lrf(points: np.ndarray, keypoints: np.ndarray, radius: float, tree: cKD
     frames = np.tile(np.eye(3), (K, 1, 1))
     if K == 0:
         return frames, np.zeros(0, bool)
-    nb = tree.query_ball_point(keypoints, radius)
+    nb = tree.query_ball_point(keypoints, radius, workers=workers)
     counts = np.array([len(n) for n in nb])
     owner = np.repeat(np.arange(K), counts)
     idx = np.concatenate([np.asarray(n, np.int64) for n in nb]) if counts.sum() else np.zeros(0, np.int64)
     diff = points[idx] - keypoints[owner]
-    w = radius - np.linalg.norm(diff, axis=1)
+    w = radius - np.sqrt(np.einsum("ij,ij->i", diff, diff))
     M = np.zeros((K, 3, 3))
     for a in range(3):  # the weighted covariance, one bincount per entry of its upper triangle
         for b in range(a, 3):
@@ -51,10 +52,9 @@ def shot_lrf(points: np.ndarray, keypoints: np.ndarray, radius: float, tree: cKD
     pos = np.full(K, -1)
     pos[vi] = np.arange(len(vi))
     sel = valid[owner]
-    o = pos[owner[sel]]
-    d = diff[sel]
+    o, d = (pos[owner], diff) if sel.all() else (pos[owner[sel]], diff[sel])
     for axis in (x, z):
-        proj = (d * axis[o]).sum(axis=1)
+        proj = np.einsum("ij,ij->i", d, axis[o])
         lead = np.bincount(o, weights=np.where(proj >= 0, 1.0, -1.0), minlength=len(vi))  # (non-negative) - (negative)
         axis[lead < 0] *= -1
     y = np.cross(z, x)

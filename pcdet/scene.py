@@ -89,13 +89,15 @@ class Scene:
     keypoints : (K,) int64 indices into points; descriptors : (K, 33) float32 FPFH of each;
     lrf_radius : m, support of the keypoints' local reference frames;
     colours : (K, 2) float32 chromaticity of each keypoint (``colour.chromaticity``; NaN where unknown), or None
-        when the frame has no colour image.
+        when the frame has no colour image;
+    workers : threads of the LRFs' neighbour search (the frames are the same for any number).
     """
 
     def __init__(self, points: np.ndarray, normals: np.ndarray, labels: np.ndarray, plane: Plane | None,
                  keypoints: np.ndarray, descriptors: np.ndarray, *, lrf_radius: float,
-                 colours: np.ndarray | None = None):
+                 colours: np.ndarray | None = None, workers: int = 1):
         self.points, self.normals, self.labels, self.plane = points, normals, labels, plane
+        self.workers = workers
         self.keypoints, self.descriptors, self.colours = keypoints, descriptors, colours
         self.lrf_radius = lrf_radius
         self.tree = cKDTree(points) if len(points) else None
@@ -118,7 +120,7 @@ class Scene:
             todo = np.unique(index[~self._lrf_done[index]])
             if len(todo):
                 self._lrf[todo] = shot_lrf(self.points, self.points[self.keypoints[todo]], self.lrf_radius,
-                                           self.tree)[0]
+                                           self.tree, workers=self.workers)[0]
                 self._lrf_done[todo] = True
             return self._lrf[index]
 

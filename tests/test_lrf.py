@@ -68,3 +68,14 @@ def test_scene_frames_on_demand_equal_the_frames_of_all_keypoints_at_once(rng):
     np.testing.assert_array_equal(s.lrfs, whole)
     view = s.keypoints_at(0.0, min_step=0.0).subset(np.arange(len(kp)) % 3 == 0)
     np.testing.assert_array_equal(view.lrfs, whole[::3])
+
+
+def test_frames_are_the_same_on_any_thread_count(rng):
+    """The neighbour search may run on several threads: every frame is bit-identical to the single-threaded one."""
+    pts = rng.random((5000, 3)) * 0.1
+    kp = pts[::7]
+    one, v1 = shot_lrf(pts, kp, 0.02, workers=1)
+    two, v2 = shot_lrf(pts, kp, 0.02, workers=2)
+    np.testing.assert_array_equal(v1, v2)
+    np.testing.assert_array_equal(one, two)
+    assert v1.sum() > 0.9 * len(kp)
