@@ -197,6 +197,40 @@ def pose_distances(T: np.ndarray, cm: np.ndarray, cs: np.ndarray) -> np.ndarray:
     return np.sqrt(d2)
 
 
+def _in_reach(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, r: float) -> list[np.ndarray] | None:
+    """For each pose T (B, 4, 4), the indices (ascending) of the correspondences (cm -> cs, (M, 3) each) that can
+    lie within ``r`` of it: those whose scene point is within r of the ball that holds every placed model point
+    (|T cm - cs| < r needs |cs - T c| < R + r, with R the model points' largest distance from their centre c).
+    None when most correspondences are in reach of most poses (then testing them all is cheaper).
+
+    The balls are tested on the distinct scene points only: a scene keypoint's candidates are consecutive rows
+    of cs (as ``correspondence_points`` lays them out), so each run of equal rows is one point."""
+    if len(cm) == 0:
+        return None
+    c = (cm.min(axis=0) + cm.max(axis=0)) / 2
+    reach = np.sqrt(np.max(np.einsum("ij,ij->i", cm - c, cm - c))) + r + 1e-6  # a micrometre to spare
+    new = np.r_[True, np.any(cs[1:] != cs[:-1], axis=1)]
+    U, owner = cs[new], np.cumsum(new) - 1
+    centres = np.einsum("bij,j->bi", T[:, :3, :3], c) + T[:, :3, 3]
+    d2 = np.zeros((len(T), len(U)))
+    for i in range(3):
+        d2 += (U[None, :, i] - centres[:, None, i]) ** 2
+    inside = d2 < reach * reach
+    if inside.mean() > 0.5:
+        return None
+    return [np.flatnonzero(row[owner]) for row in inside]
+
+
+def inliers(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> list[np.ndarray]:
+    """For each pose T (B, 4, 4), the indices (ascending) of the correspondences (model cm -> scene cs, (M, 3)
+    each) whose placed model point lies within ``tau`` (m) of its scene point. Only the correspondences within
+    reach of the placed model are measured (``_in_reach``): the same sets as measuring all of them."""
+    reach = _in_reach(T, cm, cs, tau)
+    if reach is None:
+        return [np.flatnonzero(row < tau) for row in pose_distances(T, cm, cs)]
+    return [idx[pose_distances(T[b:b + 1], cm[idx], cs[idx])[0] < tau] for b, idx in enumerate(reach)]
+
+
 def refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tuple[np.ndarray, list[np.ndarray]]:
     """Robust refit of B poses (B, 4, 4) on correspondences (model cm -> scene cs, (M, 3) each): Tukey-weighted
     Kabsch with the kernel shrinking from ``tau`` to ``tau / 2``, so that wrong matches that happen to fall
@@ -205,12 +239,10 @@ def refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tu
     The weighting rounds see only the correspondences within ``3 tau`` of some starting pose (the others are
     far outside every kernel); the inliers are taken among all of them."""
     T = T.copy()
-    d = pose_distances(T, cm, cs)
-    near = np.flatnonzero((d < 3 * tau).any(axis=0))
-    sm, ss, d = cm[near], cs[near], d[:, near]
+    near = np.unique(np.concatenate(inliers(T, cm, cs, 3 * tau) + [np.zeros(0, np.int64)]))
+    sm, ss = cm[near], cs[near]
     for n, scale in enumerate((1.0, 1.0, 0.75, 0.5, 0.5)):
-        if n:
-            d = pose_distances(T, sm, ss)
+        d = pose_distances(T, sm, ss)
         c = tau * scale
         inside = d < c
         ok = inside.sum(axis=1) >= 3
@@ -218,8 +250,7 @@ def refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tu
             break
         w = np.where(inside[ok], (1 - (d[ok] / c) ** 2) ** 2, 0.0) + 1e-12
         T[ok] = kabsch_shared(sm, ss, w)
-    d = pose_distances(T, cm, cs)
-    return T, [np.flatnonzero(row < tau) for row in d]
+    return T, inliers(T, cm, cs, tau)
 
 
 def ramp(counts: np.ndarray) -> np.ndarray:
