@@ -241,20 +241,20 @@ class _Graph:
 
 def _second_order(start: np.ndarray, deg: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per edge of the CSR compatibility graph, the number of correspondences compatible with both its ends
-    (SC^2, Chen et al. 2022), and the sorted edge keys src * M + dst."""
+    (SC^2, Chen et al. 2022), and the sorted edge keys src * M + dst (``nbr`` is sorted within each row)."""
     import scipy.sparse as sparse
 
     M = len(deg)
-    src = np.repeat(np.arange(M), deg)
-    A = sparse.csr_matrix((np.ones(len(nbr), np.float32), (src, nbr)), shape=(M, M))
-    AA = (A @ A).tocsr()
-    AA.sort_indices()
+    src = np.repeat(np.arange(M, dtype=np.int64), deg)
     keys = src * M + nbr
-    # look every edge up among A^2's entries by key (scipy's fancy indexing is 10x slower)
-    akeys = np.repeat(np.arange(M, dtype=np.int64), np.diff(AA.indptr)) * M + AA.indices
-    pos = np.minimum(np.searchsorted(akeys, keys), max(len(akeys) - 1, 0))
-    common = np.where(akeys[pos] == keys, AA.data[pos], 0.0) if len(akeys) else np.zeros(len(keys))
-    return common.astype(np.float64), keys
+    A = sparse.csr_matrix((np.ones(len(nbr), np.float32), nbr, np.r_[0, np.cumsum(deg)]), shape=(M, M))
+    # A^2 counts common neighbours of every pair; masked by A, only the edges' (those with any) remain
+    S = (A @ A).multiply(A).tocsr()
+    S.sort_indices()
+    common = np.zeros(len(keys))
+    skeys = np.repeat(np.arange(M, dtype=np.int64), np.diff(S.indptr)) * M + S.indices
+    common[np.searchsorted(keys, skeys)] = S.data
+    return common, keys
 
 
 @dataclass
