@@ -201,11 +201,12 @@ def _in_reach(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, r: float) -> list[n
     """For each pose T (B, 4, 4), the indices (ascending) of the correspondences (cm -> cs, (M, 3) each) that can
     lie within ``r`` of it: those whose scene point is within r of the ball that holds every placed model point
     (|T cm - cs| < r needs |cs - T c| < R + r, with R the model points' largest distance from their centre c).
-    None when most correspondences are in reach of most poses (then testing them all is cheaper).
+    None when there are few correspondences or a third or more are in reach of an average pose: then measuring
+    them all at once is cheaper than one pose at a time.
 
     The balls are tested on the distinct scene points only: a scene keypoint's candidates are consecutive rows
     of cs (as ``correspondence_points`` lays them out), so each run of equal rows is one point."""
-    if len(cm) == 0:
+    if len(cm) < 4000:
         return None
     c = (cm.min(axis=0) + cm.max(axis=0)) / 2
     reach = np.sqrt(np.max(np.einsum("ij,ij->i", cm - c, cm - c))) + r + 1e-6  # a micrometre to spare
@@ -216,7 +217,7 @@ def _in_reach(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, r: float) -> list[n
     for i in range(3):
         d2 += (U[None, :, i] - centres[:, None, i]) ** 2
     inside = d2 < reach * reach
-    if inside.mean() > 0.5:
+    if inside.mean() > 1 / 3:
         return None
     return [np.flatnonzero(row[owner]) for row in inside]
 
