@@ -240,7 +240,9 @@ def refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tu
     The weighting rounds see only the correspondences within ``3 tau`` of some starting pose (the others are
     far outside every kernel); the inliers are taken among all of them."""
     T = T.copy()
-    near = np.unique(np.concatenate(inliers(T, cm, cs, 3 * tau) + [np.zeros(0, np.int64)]))
+    near = np.zeros(len(cm), bool)  # marked, not sorted: the union of the poses' sets
+    for idx in inliers(T, cm, cs, 3 * tau):
+        near[idx] = True
     sm, ss = cm[near], cs[near]
     for n, scale in enumerate((1.0, 1.0, 0.75, 0.5, 0.5)):
         d = pose_distances(T, sm, ss)
