@@ -282,7 +282,8 @@ class Detector:
         v = self.config.verify
         pts = [transform(regs[j].T_target_source, self.library[hyps[j].model_index].points) for j in order]
         ratio = np.array([vers[j].n_violations / max(vers[j].n_supported, 1) for j in order])
-        terms = candidate_terms(scene.points, scene.tree, pts, ratio, v.explain_radius, v.clutter_radius)
+        terms = candidate_terms(scene.points, scene.tree, pts, ratio, v.explain_radius, v.clutter_radius,
+                                plane=scene.plane, scene_normals=scene.normals)
         conflicts = same_object_conflicts(terms, [hyps[j].model_index for j in order], v.conflict_overlap)
         chosen, _ = select(terms, v.duplicate_weight, v.clutter_weight, v.violation_weight, conflicts=conflicts)
         return [order[i] for i in sorted(chosen)]

@@ -59,3 +59,48 @@ def test_see_through_evidence_counts_against():
 def test_no_candidates():
     scene = _grid(0.0, 0.02, 0.0, 0.02)
     assert select(_terms(scene, []), 1.0, 5.0, 1.0) == ([], 0.0)
+
+
+def _box(x0, x1, y0, y1, z0, z1, step=0.004):
+    """Samples of the six faces of an axis-aligned box (m)."""
+    xs, ys, zs = (np.arange(a, b + 1e-9, step) for a, b in ((x0, x1), (y0, y1), (z0, z1)))
+    faces = []
+    for z in (z0, z1):
+        X, Y = np.meshgrid(xs, ys)
+        faces.append(np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, z)]))
+    for x in (x0, x1):
+        Y, Z = np.meshgrid(ys, zs)
+        faces.append(np.column_stack([np.full(Y.size, x), Y.ravel(), Z.ravel()]))
+    for y in (y0, y1):
+        X, Z = np.meshgrid(xs, zs)
+        faces.append(np.column_stack([X.ravel(), np.full(X.size, y), Z.ravel()]))
+    return np.unique(np.round(np.vstack(faces), 6), axis=0)
+
+
+def test_what_an_object_stands_on_is_not_its_clutter():
+    """A 4 cm cube stands on a board 15 mm above the supporting plane (z = 0, normal +z, as preprocessing removes
+    it); the board runs on around the cube's base. Seen are the board, the cube's top and two of its sides.
+    Without the plane, the board next to the base is the cube's clutter and the true cube is dropped; with the
+    plane the board it stands on is left out of its clutter and the cube is kept. A slab whose top face is fitted
+    into the board (its base 2 cm lower) still has the board around it as clutter, plane or not."""
+    from pcdet.cloud import Plane
+
+    board = _grid(-0.1, 0.1, -0.1, 0.1, z=0.015)
+    board = board[~((board[:, 0] > -0.002) & (board[:, 0] < 0.042) & (board[:, 1] > -0.002) & (board[:, 1] < 0.042))]
+    cube = _box(0.0, 0.04, 0.0, 0.04, 0.015, 0.055)
+    seen = cube[(cube[:, 2] > 0.0549) | (cube[:, 0] < 1e-6) | (cube[:, 1] < 1e-6)]
+    seen = seen[seen[:, 2] > 0.0151]
+    scene = np.vstack([board, seen])
+    normals = np.tile([0.0, 0.0, 1.0], (len(scene), 1))
+    side = np.arange(len(board), len(scene))[seen[:, 2] < 0.0549]
+    normals[side] = np.where((seen[seen[:, 2] < 0.0549, 0] < 1e-6)[:, None], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0])
+    slab = _box(-0.08, -0.04, -0.08, -0.04, -0.005, 0.015)
+    plane = Plane(np.array([0.0, 0.0, 1.0]), 0.0, np.zeros(0, np.int64))
+    tree = cKDTree(scene)
+    bare = candidate_terms(scene, tree, [cube, slab], np.zeros(2), 0.006, 0.015)
+    held = candidate_terms(scene, tree, [cube, slab], np.zeros(2), 0.006, 0.015, plane=plane, scene_normals=normals)
+    assert len(bare.clutter[0]) > 50 and len(held.clutter[0]) == 0
+    assert np.array_equal(held.clutter[1], bare.clutter[1]) and len(bare.clutter[1]) > len(bare.explained[1])
+    assert all(np.array_equal(a, b) for a, b in zip(held.explained, bare.explained))
+    assert select(bare, 1.0, 5.0, 1.0)[0] == []
+    assert select(held, 1.0, 5.0, 1.0)[0] == [0]
