@@ -55,8 +55,11 @@ class OdometryConfig:
     keyframe_distance: float = 0.1
     keyframe_angle_deg: float = 10.0
     keyframes: int = 10
+    depth_weight_power: float = 4.0
 
     def __post_init__(self):
+        if self.depth_weight_power < 0:
+            raise ConfigError(f"OdometryConfig.depth_weight_power must be >= 0, got {self.depth_weight_power}")
         if self.method not in ("kiss", "icp", "kiss+icp"):
             raise ConfigError(f"OdometryConfig.method must be 'kiss', 'icp' or 'kiss+icp', got {self.method!r}")
 
@@ -100,7 +103,11 @@ class _KeyframeICP:
         v = max(vox, mvox)
         rc = RefineConfig(iterations=40, max_distance=4 * v, kernel=2 * v)
         src, _, _ = voxel_downsample(pts, 2 * vox, representatives=False)
-        T_world_cur = icp(src, mp, mn, T_world_guess, rc, target_tree=tree).T_target_source
+        w = None
+        if cfg.depth_weight_power and len(src):
+            z = np.maximum(src[:, 2], 1e-3)
+            w = (float(np.median(z)) / z) ** cfg.depth_weight_power
+        T_world_cur = icp(src, mp, mn, T_world_guess, rc, target_tree=tree, weights=w).T_target_source
         T_key_cur = np.linalg.inv(self.T_world_key) @ T_world_cur
         if (np.linalg.norm(T_key_cur[:3, 3]) >= cfg.keyframe_distance
                 or rotation_error_deg(T_key_cur, np.eye(3)) >= cfg.keyframe_angle_deg):

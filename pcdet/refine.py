@@ -49,8 +49,12 @@ class RegistrationResult:
 
 def icp(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_init: np.ndarray,
         cfg: RefineConfig, *, source_normals: np.ndarray | None = None, target_tree: cKDTree | None = None,
-        viewpoint: np.ndarray | None = None, tolerance: tuple[float, float] = (1e-5, 1e-6)) -> RegistrationResult:
+        viewpoint: np.ndarray | None = None, tolerance: tuple[float, float] = (1e-5, 1e-6),
+        weights: np.ndarray | None = None) -> RegistrationResult:
     """Point-to-plane ICP of ``source`` (N, 3) onto ``target`` (M, 3) with ``target_normals`` (M, 3).
+
+    ``weights`` : optional (N,) non-negative weight of each source point, multiplying the robust kernel's (for
+    instance the inverse of its measurement noise variance).
 
     It stops after ``cfg.iterations`` or once a step turns less than ``tolerance[0]`` (rad) and moves less than
     ``tolerance[1]`` (m).
@@ -63,7 +67,8 @@ def icp(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_in
     converged = False
     it = 0
     for it in range(1, cfg.iterations + 1):
-        p, q, n, w, _ = _pairs(source, source_normals, target, target_normals, tree, T, cfg=cfg, viewpoint=viewpoint)
+        p, q, n, w, _ = _pairs(source, source_normals, target, target_normals, tree, T, cfg=cfg, viewpoint=viewpoint,
+                              weights=weights)
         if len(p) < 6:
             break
         r = ((p - q) * n).sum(axis=1)
@@ -99,12 +104,13 @@ def _rotvec_matrix(v: np.ndarray) -> np.ndarray:
     return np.eye(3) + (np.sin(theta) / theta) * K + ((1 - np.cos(theta)) / theta ** 2) * (K @ K)
 
 
-def _pairs(source, source_normals, target, target_normals, tree, T, *, cfg, viewpoint):
+def _pairs(source, source_normals, target, target_normals, tree, T, *, cfg, viewpoint, weights=None):
     p = transform(T, source)
     if source_normals is not None and viewpoint is not None:
         ns = source_normals @ T[:3, :3].T
         front = ((viewpoint - p) * ns).sum(axis=1) > 0
         p = p[front]
+        weights = None if weights is None else weights[front]
     n_src = len(p)
     d, j = tree.query(p, distance_upper_bound=cfg.max_distance)
     ok = np.isfinite(d)
@@ -113,4 +119,6 @@ def _pairs(source, source_normals, target, target_normals, tree, T, *, cfg, view
     r = ((p - q) * n).sum(axis=1)
     u = r / cfg.kernel
     w = np.where(np.abs(u) < 1, (1 - u ** 2) ** 2, 0.0)
+    if weights is not None:
+        w = w * weights[ok]
     return p, q, n, w, n_src

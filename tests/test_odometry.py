@@ -125,3 +125,18 @@ def test_odometry_command_on_real_kinect_frames(tmp_path):
     refs = [r for r in rec if r.im_id != 12]
     gt = [np.linalg.inv(truth[refs[0]]) @ truth[r] for r in refs]
     assert ate_rmse(poses, gt) < 0.03 < ate_rmse(identity_baseline(gt), gt)
+
+
+def test_depth_noise_weights_on_real_kinect_frames():
+    """The first 122 real 7-Scenes frames (up to the ground truth's 36 mm jump between frames 121 and 122): the
+    default, each point weighted by the inverse of a structured-light sensor's depth noise variance, stays under
+    15 mm ATE (measured 12.8 mm); with every point weighted alike it drifts to 16.1 mm. The bar is below the
+    unweighted result, so the test fails if the weights stop taking effect."""
+    from .conftest import shared
+
+    rec = open_recording(shared("sevenscenes"))
+    refs = list(rec)[:122]
+    truth = rec.camera_poses()
+    gt = [np.linalg.inv(truth[refs[0]]) @ truth[r] for r in refs]
+    frames = [rec.frame(r) for r in refs]
+    assert ate_rmse(list(odometry(frames, OdometryConfig())), gt) < 0.015
