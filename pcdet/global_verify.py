@@ -25,9 +25,13 @@ object's base; counted as clutter it sinks true detections.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial import cKDTree
+
+if TYPE_CHECKING:
+    from .cloud import Plane
 
 
 @dataclass(frozen=True)
@@ -44,7 +48,7 @@ SUPPORT_DEG = 30.0  # a surface facing up within this of the supporting plane's 
 
 def candidate_terms(scene_points: np.ndarray, scene_tree: cKDTree, model_points: list[np.ndarray],
                     violation_ratio: np.ndarray, explain_radius: float, clutter_radius: float, *,
-                    plane=None, scene_normals: np.ndarray | None = None) -> GlobalTerms:
+                    plane: "Plane | None" = None, scene_normals: np.ndarray | None = None) -> GlobalTerms:
     """scene_points : (N, 3) m; model_points : per candidate (M_h, 3) surface samples already at the pose (m);
     violation_ratio : (H,) violating / supported pixels of each candidate; plane : the supporting ``Plane``
     (unit normal toward the camera) or None, with ``scene_normals`` (N, 3): what a candidate stands on is not

@@ -62,6 +62,8 @@ def icp(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_in
     With ``source_normals`` and a ``viewpoint`` (target frame, e.g. the camera origin), only source points whose
     normals face the viewpoint take part, as only they can have been seen.
     """
+    if weights is not None and np.shape(weights) != (len(source),):
+        raise ValueError(f"icp weights must be one per source point ({len(source)},), got {np.shape(weights)}")
     tree = target_tree if target_tree is not None else cKDTree(target)
     T = np.asarray(T_init, float).copy()
     converged = False

@@ -1,5 +1,6 @@
 """ICP converges from a perturbed pose onto a rendered view of a model."""
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from pcdet.cloud import estimate_normals
@@ -46,7 +47,7 @@ def test_icp_point_weights_scale_each_points_pull(library, rng):
     """Per-point ``weights``: the same weight everywhere gives the unweighted result (1e-12), and zero weights
     leave those points out exactly as if they were not there (1e-12). Half of the source is moved 2 cm off the
     model; with those points weighted zero the pose is the truth's within 0.1 mm and 0.1 deg, and without the
-    weights it is not (the moved half drags it)."""
+    weights it is not (the moved half drags it). Weights of the wrong length are refused."""
     m = library[4]
     T = np.eye(4)
     T[:3, 3] = [0.0, 0.0, 0.6]
@@ -67,3 +68,5 @@ def test_icp_point_weights_scale_each_points_pull(library, rng):
     np.testing.assert_allclose(held, kept, atol=1e-12)
     assert np.linalg.norm(held[:3, 3] - T[:3, 3]) < 1e-4 and rotation_error_deg(held[:3, :3], T[:3, :3]) < 0.1
     assert np.linalg.norm(plain[:3, 3] - T[:3, 3]) > 1e-3
+    with pytest.raises(ValueError, match="one per source point"):
+        icp(src, target, m.normals @ T[:3, :3].T, init, cfg, weights=w[:-1])
