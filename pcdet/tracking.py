@@ -44,7 +44,9 @@ class TrackingConfig:
     correct the camera every frame, so odometry only has to bring each object within ICP's reach. On a 60-frame
     recording, run back to back (``python scripts/bench_tracking.py``, then the same with
     ``OdometryConfig()``), the largest object error was 2.30 mm with it and 2.28 mm with the finer default
-    odometry, at 13.5 against 6.0 tracking frames per second.
+    odometry, at 13.5 against 6.0 tracking frames per second. That was before the odometry weighed points by
+    their depth noise and before the sensor model's random stream changed the scenes; today the benchmark gives
+    2.71 mm at 13.2 frames per second.
 """
 
     redetect_every: int = 15
