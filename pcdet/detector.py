@@ -24,7 +24,7 @@ from .frame import Frame
 from .global_verify import candidate_terms, same_object_conflicts, select
 from .grouping import Hypothesis, make_grouper
 from .grouping.common import distinct_poses, distinct_surfaces
-from .keypoints import select_keypoints
+from .keypoints import select_keypoints, voxel_keypoint_levels
 from .library import ModelLibrary
 from .matching import Candidates, LibraryIndex, match_features, match_library
 from .prepared_model import PreparedModel
@@ -110,6 +110,10 @@ class Refinement:
     detection: Detection | None = None
 
 
+# a grid step this many times the finest gets its own keypoints, as the model would alone (the finest grid thinned
+# to it would keep one sample in OWN_GRID_RATIO^2 or more on a surface, an arbitrary one, not the voxel's most
+# central); a finer step takes the finest keypoints, thinned (most of them)
+OWN_GRID_RATIO = 1.5
 SURFACE_SAMPLES = 128  # model samples that tell two candidate poses' surfaces apart (_spread_per_model)
 
 
@@ -182,24 +186,38 @@ class Detector:
     def keypoint_spacing(self, models: list[PreparedModel]) -> float:
         """m; scene keypoints are described this far apart: ``keypoints.spacing``, or for large models no denser
         than grouping uses them (the smallest searched diameter / ``grouping.grid_per_diameter``)."""
+        return min((self.grid_step(pm) for pm in models), default=self.config.keypoints.spacing)
+
+    def grid_step(self, pm: PreparedModel) -> float:
+        """m; the spacing of the scene keypoints ``pm`` groups: its diameter / ``grouping.grid_per_diameter``, no
+        finer than ``keypoints.spacing`` (large models need no denser grid)."""
         cfg = self.config
-        smallest = min((pm.model.diameter for pm in models), default=0.0)
-        return max(cfg.keypoints.spacing, smallest / cfg.grouping.grid_per_diameter)
+        return max(cfg.keypoints.spacing, pm.model.diameter / cfg.grouping.grid_per_diameter)
 
     def scene(self, frame: Frame, tm: _Timer | None = None, models: list[PreparedModel] | None = None) -> Scene:
         """The frame's ``Scene`` for finding ``models`` (default: all): preprocessed cloud (the support's height
         set by the largest of them), keypoints and their FPFH; with a colour image, the keypoints' chromaticity,
-        and when every model has colour, only the keypoints whose colour some model has."""
+        and when every model has colour, only the keypoints whose colour some model has.
+
+        Voxel keypoints are chosen at the finest model's grid step and, at once, at every grid step
+        ``OWN_GRID_RATIO`` times coarser or more (``voxel_keypoint_levels``): a large model beside small ones
+        groups the keypoints it groups when searched alone, not one arbitrary sample in several of the finest
+        grid; the descriptors are computed once, on the union."""
         cfg, tm = self.config, tm or _Timer()
         models = self.models if models is None else models
         with tm("preprocess"):
             size = max((pm.model.diameter for pm in models), default=0.3)
             cloud = preprocess(frame, cfg.preprocess, cfg.seed, model_size=size)
         with tm("keypoints"):
-            kcfg = cfg.keypoints
-            if kcfg.method == "voxel":
-                kcfg = dataclasses.replace(kcfg, spacing=self.keypoint_spacing(models))
-            kp = select_keypoints(cloud.points, kcfg)
+            levels = None
+            if cfg.keypoints.method == "voxel":
+                steps = [self.grid_step(pm) for pm in models]
+                # a step under OWN_GRID_RATIO times the finest takes the finest keypoints, thinned (most of them)
+                fine = min(steps, default=cfg.keypoints.spacing)
+                kp, levels = voxel_keypoint_levels(cloud.points, [s for s in steps if s >= OWN_GRID_RATIO * fine]
+                                                   + [fine])
+            else:
+                kp = select_keypoints(cloud.points, cfg.keypoints)
             colours = None
             palette = [pm.colours for pm in models if pm.colours is not None]
             if frame.rgb is not None and cfg.matching.colour_gate > 0 and palette:  # colour matters to a model
@@ -208,10 +226,13 @@ class Detector:
                     # a keypoint whose colour no model has can match nothing: it is not described at all
                     keep = colour_within(colours, np.concatenate(palette), cfg.matching.colour_gate)
                     kp, colours = kp[keep], colours[keep]
+                    if levels is not None:
+                        at = np.cumsum(keep) - 1  # new position of each kept keypoint
+                        levels = {s: at[i[keep[i]]] for s, i in levels.items()}
         with tm("features"):
             feats = fpfh(cloud.points, cloud.normals, kp, cfg.features)
         return Scene(cloud.points, cloud.normals, cloud.labels, cloud.plane, kp, feats,
-                     lrf_radius=cfg.features.lrf_support, colours=colours, workers=self.workers)
+                     lrf_radius=cfg.features.lrf_support, colours=colours, workers=self.workers, levels=levels)
 
     def _hypotheses(self, scene: Scene, models: list[PreparedModel], tm: _Timer, trace: Trace | None = None
                     ) -> list[Hypothesis]:
@@ -225,8 +246,7 @@ class Detector:
 
         def view_of(pm: PreparedModel) -> SceneKeypoints:
             # large models need no denser grid of scene points than diameter / grid_per_diameter
-            step = max(cfg.keypoints.spacing, pm.model.diameter / cfg.grouping.grid_per_diameter)
-            return scene.keypoints_at(step, min_step=spacing)
+            return scene.keypoints_at(self.grid_step(pm), min_step=spacing)
 
         with tm("matching"):
             if len(models) > 1 and mc.library_pool > 0 and mc.ratio >= 1 and not mc.mutual:

@@ -43,3 +43,21 @@ def select_keypoints(points: np.ndarray, cfg: KeypointConfig) -> np.ndarray:
         return np.zeros(0, np.int64)
     _, idx = cKDTree(points).query(kpts)
     return np.unique(idx.astype(np.int64))
+
+
+
+def voxel_keypoint_levels(points: np.ndarray, steps) -> tuple[np.ndarray, dict[float, np.ndarray]]:
+    """Voxel keypoints at several spacings at once: each step's set is exactly ``select_keypoints`` at that
+    spacing (the sample nearest each occupied voxel's mean), so a model grouping one of them sees the keypoints
+    it would see searched alone; the descriptors are then computed once, on the union.
+
+    points : (N, 3) m; steps : positive spacings (m). Returns ``(kp, levels)``: ``kp`` (K,) int64 ascending
+    indices into ``points`` of every step's samples, and ``levels[step]`` the ascending positions in ``kp`` of
+    that step's samples.
+    """
+    steps = sorted({float(s) for s in steps})
+    if len(points) == 0 or not steps:
+        return np.zeros(0, np.int64), {s: np.zeros(0, np.int64) for s in steps}
+    per = {s: np.sort(voxel_downsample(points, s)[2]) for s in steps}
+    kp = np.unique(np.concatenate(list(per.values())))
+    return kp, {s: np.searchsorted(kp, idx) for s, idx in per.items()}

@@ -88,6 +88,9 @@ class Scene:
     each; plane : the removed supporting plane or None; tree : KD-tree of the points (None when empty);
     keypoints : (K,) int64 indices into points; descriptors : (K, 33) float32 FPFH of each;
     lrf_radius : m, support of the keypoints' local reference frames;
+    levels : ``{step: positions in keypoints}`` of the keypoints chosen for each grouping step (m) when they were
+        selected at several spacings at once (``keypoints.voxel_keypoint_levels``; the finest is the keypoint
+        spacing), or None;
     colours : (K, 2) float32 chromaticity of each keypoint (``colour.chromaticity``; NaN where unknown), or None
         when the frame has no colour image;
     workers : threads of the LRFs' neighbour search (the frames are the same for any number).
@@ -95,11 +98,13 @@ class Scene:
 
     def __init__(self, points: np.ndarray, normals: np.ndarray, labels: np.ndarray, plane: Plane | None,
                  keypoints: np.ndarray, descriptors: np.ndarray, *, lrf_radius: float,
-                 colours: np.ndarray | None = None, workers: int = 1):
+                 colours: np.ndarray | None = None, workers: int = 1,
+                 levels: dict[float, np.ndarray] | None = None):
         self.points, self.normals, self.labels, self.plane = points, normals, labels, plane
         self.workers = workers
         self.keypoints, self.descriptors, self.colours = keypoints, descriptors, colours
         self.lrf_radius = lrf_radius
+        self.levels = levels or {}
         self.tree = cKDTree(points) if len(points) else None
         self._memo = _Memo()
         self._lrf_lock = threading.Lock()
@@ -125,13 +130,19 @@ class Scene:
             return self._lrf[index]
 
     def keypoints_at(self, step: float, *, min_step: float) -> SceneKeypoints:
-        """The keypoints at least ``step`` m apart (one per voxel of that side; all of them when ``step`` is
-        within 5 % of ``min_step``, the keypoint spacing), as a ``SceneKeypoints`` view shared by every model
-        that asks for the same step. Its LRFs are the frame's, taken on first use."""
+        """The keypoints at least ``step`` m apart, as a ``SceneKeypoints`` view shared by every model that asks
+        for the same step: the level selected at that step (``levels``) when there is one, else the keypoints at
+        ``min_step`` (the keypoint spacing) thinned to one per voxel of side ``step`` (all of them when ``step`` is
+        within 5 % of ``min_step``). Its LRFs are the frame's, taken on first use."""
         def build() -> SceneKeypoints:
             kp = self.keypoints
-            sub = np.arange(len(kp)) if step <= min_step * 1.05 else \
-                np.sort(voxel_downsample(self.points[kp], step)[2])
+            base = self.levels.get(min_step, np.arange(len(kp)))
+            if step in self.levels:
+                sub = self.levels[step]
+            elif step <= min_step * 1.05:
+                sub = base
+            else:
+                sub = base[np.sort(voxel_downsample(self.points[kp[base]], step)[2])]
             return SceneKeypoints(self.points[kp[sub]], self.normals[kp[sub]], labels=self.labels[kp[sub]],
                                   lrfs=self.lrfs_of, cloud_tree=self.tree, index=sub)
 

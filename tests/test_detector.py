@@ -160,3 +160,35 @@ def test_refinement_budget_covers_distinct_spots_first():
     assert _spread_per_model(idx, looks, hyps, poses, [model], 3) == [0, 3, 4]
     assert _spread_per_model(idx, looks, hyps, poses, [model], 3, spots={0: 1}) == [0, 1, 2]
     assert _spread_per_model(idx, looks, hyps, poses, [model], 3, spots={0: 2}) == [0, 1, 3]
+
+
+def test_a_large_model_groups_the_same_keypoints_alone_or_beside_smaller_ones(synth_small, library):
+    """Scene keypoints are chosen at the finest grid step and at each step 1.5 times coarser or more
+    (``OWN_GRID_RATIO``): a large crate (grid 21 mm) beside the shipped parts (grids of 8-10 mm) groups exactly
+    the keypoints, and descriptors, it groups when searched alone, not the 8 mm grid thinned; the parts, all
+    under 1.5 times the finest, group the same keypoints as without the crate."""
+    import dataclasses
+
+    import trimesh
+
+    from pcdet.detector import OWN_GRID_RATIO
+    from pcdet.model import build_model
+
+    crate = build_model(trimesh.creation.box((0.2, 0.12, 0.08)), PipelineConfig(), obj_id=99, name="crate")
+    ds = BopDataset(synth_small)
+    f = dataclasses.replace(ds.frame(ds.images[0]), rgb=None)
+    det = Detector(ModelLibrary(list(library) + [crate]), workers=1)
+    big, parts = det.models[-1], det.models[:-1]
+    fine = det.keypoint_spacing(parts)
+    assert det.grid_step(big) > 2 * fine and max(det.grid_step(pm) for pm in parts) < OWN_GRID_RATIO * fine
+    alone, beside, without = (det.scene(f, models=m) for m in ([big], det.models, parts))
+    assert set(beside.levels) == {fine, det.grid_step(big)}
+    step = det.grid_step(big)
+    a, b = alone.keypoints_at(step, min_step=step), beside.keypoints_at(step, min_step=fine)
+    np.testing.assert_array_equal(a.points, b.points)
+    np.testing.assert_array_equal(alone.descriptors[a.index], beside.descriptors[b.index])
+    for pm in parts:
+        s = det.grid_step(pm)
+        x, y = without.keypoints_at(s, min_step=fine), beside.keypoints_at(s, min_step=fine)
+        np.testing.assert_array_equal(x.points, y.points)
+        np.testing.assert_array_equal(without.descriptors[x.index], beside.descriptors[y.index])

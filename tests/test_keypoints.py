@@ -25,3 +25,22 @@ def test_iss_keypoints_find_every_corner_of_a_cube():
     nearest = np.linalg.norm(pts[kp][:, None] - corners[None], axis=2).min(axis=0)
     assert nearest.max() < 0.01, nearest
     assert 8 <= len(kp) < len(pts) / 20 and (np.diff(kp) > 0).all()
+
+
+
+def test_keypoint_levels_are_each_spacings_own_grid(rng):
+    """Keypoints chosen at three spacings at once (``voxel_keypoint_levels``): every level is exactly
+    ``select_keypoints`` at its spacing (what a model with that grid groups when searched alone), ``kp`` is their
+    sorted union, and each level's positions index it in ascending order."""
+    from pcdet.keypoints import voxel_keypoint_levels
+
+    pts = rng.uniform(0, 0.2, (20000, 3))
+    steps = (0.01, 0.0137, 0.031)
+    kp, levels = voxel_keypoint_levels(pts, steps)
+    assert sorted(levels) == sorted(steps) and (np.diff(kp) > 0).all()
+    for s, pos in levels.items():
+        assert (np.diff(pos) > 0).all()
+        np.testing.assert_array_equal(kp[pos], select_keypoints(pts, KeypointConfig(spacing=s)))
+    assert len(kp) == len(set(np.concatenate([kp[p] for p in levels.values()]).tolist()))
+    empty_kp, empty = voxel_keypoint_levels(np.zeros((0, 3)), [0.02])
+    assert len(empty_kp) == 0 and len(empty[0.02]) == 0
