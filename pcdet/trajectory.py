@@ -11,7 +11,11 @@ from .align import kabsch, transform
 
 def ate_rmse(est: list[np.ndarray], gt: list[np.ndarray]) -> float:
     """Absolute trajectory error (m): RMS distance between the camera positions after the rigid alignment of
-    the estimated positions onto the true ones (least squares, no scale)."""
+    the estimated positions onto the true ones (least squares, no scale). est, gt : equally many (4, 4) poses,
+    at least one."""
+    if len(est) != len(gt) or len(est) == 0:
+        raise ValueError(f"ate_rmse needs equally many estimated and true poses, at least one; got {len(est)} "
+                         f"and {len(gt)}")
     P = np.array([T[:3, 3] for T in est])
     Q = np.array([T[:3, 3] for T in gt])
     if len(P) < 3:

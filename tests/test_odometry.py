@@ -26,6 +26,13 @@ def _traj(n=10, seed=0):
     return out
 
 
+def test_ate_refuses_empty_or_unequal_trajectories_with_one_clear_error():
+    gt = _traj()
+    for est, ref in (([], []), (gt[:-1], gt)):
+        with pytest.raises(ValueError, match="equally many"):
+            ate_rmse(est, ref)
+
+
 def test_ate_ignores_a_rigid_change_of_world_frame_and_rpe_sees_a_constant_offset():
     gt = _traj()
     W = np.eye(4)
