@@ -6,7 +6,6 @@ verification -> selection (global or by threshold).
 """
 from __future__ import annotations
 
-import dataclasses
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor

@@ -45,7 +45,6 @@ def select_keypoints(points: np.ndarray, cfg: KeypointConfig) -> np.ndarray:
     return np.unique(idx.astype(np.int64))
 
 
-
 def voxel_keypoint_levels(points: np.ndarray, steps) -> tuple[np.ndarray, dict[float, np.ndarray]]:
     """Voxel keypoints at several spacings at once: each step's set is exactly ``select_keypoints`` at that
     spacing (the sample nearest each occupied voxel's mean), so a model grouping one of them sees the keypoints
