@@ -210,11 +210,10 @@ class Detector:
         with tm("keypoints"):
             levels = None
             if cfg.keypoints.method == "voxel":
-                steps = [self.grid_step(pm) for pm in models]
                 # a step under OWN_GRID_RATIO times the finest takes the finest keypoints, thinned (most of them)
-                fine = min(steps, default=cfg.keypoints.spacing)
-                kp, levels = voxel_keypoint_levels(cloud.points, [s for s in steps if s >= OWN_GRID_RATIO * fine]
-                                                   + [fine])
+                fine = self.keypoint_spacing(models)
+                own = [s for s in (self.grid_step(pm) for pm in models) if s >= OWN_GRID_RATIO * fine]
+                kp, levels = voxel_keypoint_levels(cloud.points, own + [fine])
             else:
                 kp = select_keypoints(cloud.points, cfg.keypoints)
             colours = None

@@ -27,7 +27,6 @@ def test_iss_keypoints_find_every_corner_of_a_cube():
     assert 8 <= len(kp) < len(pts) / 20 and (np.diff(kp) > 0).all()
 
 
-
 def test_keypoint_levels_are_each_spacings_own_grid(rng):
     """Keypoints chosen at three spacings at once (``voxel_keypoint_levels``): every level is exactly
     ``select_keypoints`` at its spacing (what a model with that grid groups when searched alone), ``kp`` is their
