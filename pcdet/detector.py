@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .align import transform
+from .blas import one_blas_thread
 from .cloud import estimate_normals, voxel_downsample
 from .colour import chromaticity, colour_within, image_colours
 from .config import PipelineConfig
@@ -336,7 +337,13 @@ class Detector:
         targets : optional ``{obj_id: count}`` (BOP localisation): only those objects are searched and the
             ``count`` best-scoring verified instances of each are kept, without the score threshold.
         trace : a ``Trace`` to fill with the intermediate results (``pcdet.diagnose`` reads it).
+
+        BLAS runs on one thread meanwhile (``pcdet.blas``): the work is spread over the detector's own threads.
         """
+        with one_blas_thread():
+            return self._detect(frame, targets, trace)
+
+    def _detect(self, frame: Frame, targets: dict[int, int] | None, trace: Trace | None) -> DetectionResult:
         cfg = self.config
         tm = _Timer()
         models = [pm for pm in self.models if targets is None or pm.model.obj_id in targets]

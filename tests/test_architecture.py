@@ -12,7 +12,7 @@ PKG = Path(__file__).resolve().parent.parent / "pcdet"
 # lowest first; a module is placed by the longest dotted prefix listed (``image.cli`` before ``image``)
 LAYERS = [
     ("utilities", ["errors", "params", "_o3d", "resources", "align", "camera", "cloud", "pairs", "lrf", "render",
-                   "sensor", "metrics", "trajectory", "io", "colour"]),
+                   "sensor", "metrics", "trajectory", "io", "colour", "blas"]),
     ("frames and readers", ["frame", "datasets"]),
     ("stages", ["preprocess", "keypoints", "features", "matching", "grouping", "refine", "verify",
                 "global_verify", "odometry", "scene", "model_views", "model", "prepared_model", "image"]),
