@@ -486,7 +486,8 @@ def diagnose(dataset: Path = typer.Argument(..., help="BOP dataset with ground t
                                    metric=metric, scene_id=ref.scene_id, im_id=ref.im_id)
             prog.update(task, advance=1)
     diag = Diagnosis(rows)
-    t = Table(title=f"{metric.upper()} in diameters; kp: scene keypoints on the instance / with a correct match")
+    t = Table(title=f"{metric.upper()} in diameters; kp: scene keypoints of the model's grid on the instance / "
+                    "with a correct match")
     for c in ("scene", "image", "obj", "visib", "kp", "raw", "best raw", "refined", "best refined", "rank",
               "kept", "kept score", "best score", "stage"):
         t.add_column(c, justify="left" if c == "stage" else "right")

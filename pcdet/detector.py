@@ -82,14 +82,15 @@ class DetectionResult:
 @dataclass
 class Trace:
     """What one ``detect`` call went through, for diagnosis (``Detector.detect(..., trace=Trace())`` fills it):
-    the scene; per model index the candidate table (all scene keypoints); every raw hypothesis and the quick
-    first-look verification of each; which got the coarse ICP and which were refined (indices into
-    ``hypotheses``), their ICP
-    results and verifications; the indices into ``refined`` that passed the per-pose checks, in score order,
-    and those finally kept."""
+    the scene; per model index the candidate table (all scene keypoints) and the scene keypoints on the model's
+    grid (``grid``: indices into the scene's keypoints, before ``grouping.max_keypoints``); every raw hypothesis
+    and the quick first-look verification of each; which got the coarse ICP and which were refined (indices
+    into ``hypotheses``), their ICP results and verifications; the indices into ``refined`` that passed the
+    per-pose checks, in score order, and those finally kept."""
 
     scene: Scene | None = None
     candidates: dict = field(default_factory=dict)
+    grid: dict = field(default_factory=dict)
     hypotheses: list = field(default_factory=list)
     first_look: list = field(default_factory=list)
     coarse: list = field(default_factory=list)
@@ -272,6 +273,7 @@ class Detector:
                 scene.lrfs_of(np.flatnonzero(used))
         if trace is not None:
             trace.candidates = cands
+            trace.grid = {pm.index: view_of(pm).index for pm in models}
         with tm("grouping"):
             def group(pm: PreparedModel) -> list[Hypothesis]:
                 view = view_of(pm)

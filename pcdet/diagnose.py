@@ -85,6 +85,8 @@ def diagnose_frame(det: Detector, frame, gts: list[dict], targets: dict | None, 
 
             d, _ = cKDTree(transform(T, m.points)).query(kp, distance_upper_bound=1.5 * cfg.preprocess.voxel)
             on = np.isfinite(d)
+            if mi in trace.grid:  # only the keypoints on the model's own grid (the scene describes a union of grids)
+                on &= np.isin(np.arange(len(kp)), trace.grid[mi])
         matched = 0
         cands = trace.candidates.get(mi)
         if cands is not None and on.any():

@@ -65,3 +65,31 @@ def test_depth_only_drops_the_colour_images(synth_small, tmp_path, monkeypatch):
     _diagnose(synth_small, tmp_path / "a.json", "--limit", "1")
     _diagnose(synth_small, tmp_path / "b.json", "--limit", "1", "--depth-only")
     assert seen == [False, True]
+
+
+def test_keypoints_on_an_instance_count_its_models_grid_whatever_else_is_searched(synth_small, library):
+    """The "kp" count of an instance is the scene keypoints of its model's own grid that lie on it: searching a
+    large crate (its own 21 mm grid of keypoints, added to the scene's) beside the parts leaves every part's count
+    as it is without the crate, though the scene then holds more keypoints, some of them on the parts."""
+    import dataclasses
+
+    import trimesh
+
+    from pcdet.config import PipelineConfig
+    from pcdet.datasets.bop import BopDataset
+    from pcdet.detector import Detector
+    from pcdet.diagnose import diagnose_frame
+    from pcdet.library import ModelLibrary
+    from pcdet.model import build_model
+
+    crate = build_model(trimesh.creation.box((0.2, 0.12, 0.08)), PipelineConfig(), obj_id=99, name="crate")
+    det = Detector(ModelLibrary(list(library) + [crate]), workers=1)
+    ds = BopDataset(synth_small)
+    ref = ds.images[0]
+    frame = dataclasses.replace(ds.frame(ref), rgb=None)
+    parts = ds.targets(ref)
+    without = diagnose_frame(det, frame, ds.gt(ref), parts)
+    beside = diagnose_frame(det, frame, ds.gt(ref), {**parts, 99: 1})
+    assert beside[0].scene_keypoints > without[0].scene_keypoints
+    assert [r.keypoints_on for r in beside] == [r.keypoints_on for r in without]
+    assert all(r.keypoints_on > 0 for r in without)
