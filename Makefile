@@ -25,8 +25,9 @@ $(STAMP): pyproject.toml
 demo: setup
 	$(BIN)/pcdet demo --out demo_out
 
+# one pytest worker per core (pytest-xdist); the tests that start a local Ray instance share one worker
 test: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist loadgroup
 
 bench: setup
 	$(BIN)/python scripts/bench_peers.py

@@ -148,6 +148,7 @@ def test_pipeline_values_of_the_wrong_type_name_file_field_and_type(synth_small,
 
 
 @pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed")
+@pytest.mark.xdist_group("ray")  # one local Ray instance at a time
 def test_a_local_ray_instance_listens_on_loopback_only():
     """pcdet's local Ray instance (no --ray-address): every listening socket of every Ray process is on the
     loopback interface, and there is no dashboard. Run in a fresh interpreter, as the CLI would."""

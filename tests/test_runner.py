@@ -17,6 +17,8 @@ from .conftest import kill_after_frames
 
 # not imported here: pcdet must be the first to import Ray to keep a local instance on loopback
 requires_ray = pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed")
+# tests that start a local Ray instance run on one xdist worker, one after the other
+one_ray = pytest.mark.xdist_group("ray")
 
 
 @pytest.fixture(scope="module")
@@ -80,6 +82,7 @@ def test_corrupt_frame_in_a_plain_folder_recording_is_skipped(recording, library
 
 
 @requires_ray
+@one_ray
 def test_ray_executor_gives_the_same_results(recording, uninterrupted, library, tmp_path):
     """Detection frames as Ray tasks on a local Ray instance (2 CPUs): the same results.csv, byte for byte."""
     from pcdet.config import PipelineConfig
@@ -91,6 +94,7 @@ def test_ray_executor_gives_the_same_results(recording, uninterrupted, library, 
 
 
 @requires_ray
+@one_ray
 def test_tracking_scenes_spread_over_processes_and_ray_match_one_process(library, tmp_path):
     """Two 5-frame scenes tracked here, on 2 processes, and on Ray: the same tracks and camera poses."""
     from pcdet.config import PipelineConfig
