@@ -416,3 +416,29 @@ def test_hough_frames_take_their_z_axis_from_the_oriented_normal(rng):
     flipped[:, 1:] *= -1
     np.testing.assert_allclose(_about_normal(flipped, n), G, atol=1e-9)
     assert np.isnan(_about_normal(F[:1], F[:1, 0] + 0.01 * F[:1, 2])).all()
+
+
+def test_seed_edges_of_a_cluster_are_its_edges_in_ascending_order(rng):
+    """RANSAC draws a cluster's seed edges from ``_seed_edges`` instead of scanning the whole graph: for each
+    cluster, exactly the edges (src < dst) whose ends lie in it, ascending, as the scan listed them."""
+    from pcdet.grouping.common import compatibility_graph
+    from pcdet.grouping.ransac import _Graph, _seed_edges
+    from pcdet.pairs import scene_pairs
+
+    S, k = 120, 2
+    pts = rng.uniform(0, 0.1, (S, 3))
+    nrm = rng.normal(size=(S, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    labels = (pts[:, 0] > 0.05).astype(int) + 2 * (pts[:, 1] > 0.07)  # four clusters
+    cand = rng.integers(0, 40, (S, k))
+    mp, mn = rng.uniform(0, 0.1, (40, 3)), nrm[:40]
+    start, deg, nbr = compatibility_graph(scene_pairs(pts, nrm, labels, 0.1), cand, mp, mn, diameter=0.1,
+                                          edge_tolerance=0.01, normal_tolerance_deg=40.0)
+    g = _Graph(np.repeat(pts, k, axis=0), mp[cand.reshape(-1)], np.repeat(nrm, k, axis=0), k, start, deg, nbr)
+    clabel = np.repeat(labels, k)
+    seeds = _seed_edges(g, clabel)
+    assert len(nbr) > 100 and len(seeds) == 4
+    for lab in np.unique(labels):
+        scan = np.flatnonzero((clabel[g.src] == lab) & (g.src < g.nbr))
+        assert np.array_equal(seeds[lab], scan)
+        assert (clabel[nbr[scan]] == lab).all()  # compatible correspondences share a cluster
