@@ -25,9 +25,9 @@ $(STAMP): pyproject.toml
 demo: setup
 	$(BIN)/pcdet demo --out demo_out
 
-# one pytest worker per core (pytest-xdist); the tests that start a local Ray instance share one worker
+# one pytest worker per core, at most 4 (pytest-xdist); the tests that start a local Ray instance share one worker
 test: setup
-	$(BIN)/python -m pytest -q -n auto --dist loadgroup
+	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadgroup
 
 bench: setup
 	$(BIN)/python scripts/bench_peers.py
