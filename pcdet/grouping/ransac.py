@@ -102,9 +102,9 @@ class RansacGrouper:
         clabel = np.repeat(labels, k)
         seeds = _seed_edges(graph, clabel) if graph.common is not None else {}
         for lab in np.unique(labels[active.reshape(S, k).any(axis=1)]):
-            graph.edges = seeds.get(int(lab), np.zeros(0, np.int64))
+            edges = seeds.get(int(lab), np.zeros(0, np.int64))
             for _ in range(c.max_instances):
-                found = self._one_instance(graph, active & (clabel == lab), m.diameter, rng, overlap)
+                found = self._one_instance(graph, active & (clabel == lab), m.diameter, rng, overlap, edges=edges)
                 if not found:
                     break
                 out += [Hypothesis(model.index, T, inl, len(inl)) for T, inl in found]
@@ -117,10 +117,12 @@ class RansacGrouper:
         return out
 
     def _one_instance(self, g: "_Graph", active: np.ndarray, diameter: float, rng: np.random.Generator,
-                      overlap: "Overlap | None") -> list[tuple[np.ndarray, np.ndarray]]:
+                      overlap: "Overlap | None", *, edges: np.ndarray | None = None
+                      ) -> list[tuple[np.ndarray, np.ndarray]]:
         """The best triplet poses among ``active`` correspondences, each refit on its inliers: the best first,
         then up to ``alternatives`` others that differ from every pose before them (rotation > 10 degrees or
         translation > a fifth of the diameter), for verification to choose from. Empty when none has support.
+        ``edges``: the cluster's seed edges (``_seed_edges``), from which guided rounds draw.
 
         Triplets are ranked by the distinct scene keypoints they explain among the seed's compatible partners;
         with an ``overlap`` score, the ``rescore`` best of them are refit and re-ranked by it."""
@@ -136,7 +138,7 @@ class RansacGrouper:
             kk = nbr[start[i0] + (rng.random(len(i0)) * d0).astype(np.int64)]
             ok = active[j] & active[kk] & (j != kk) & (j // k != kk // k)
         else:
-            i0, j, kk, ok = self._guided_triangles(g, active, rng)
+            i0, j, kk, ok = self._guided_triangles(g, active, rng, edges)
             if i0 is None:
                 return []
         tri = np.stack([i0, j, kk], axis=1)[ok]
@@ -202,13 +204,13 @@ class RansacGrouper:
         return [(Tr[i], pool[inls[i]]) for i in first]
 
 
-    def _guided_triangles(self, g: "_Graph", active: np.ndarray, rng: np.random.Generator):
+    def _guided_triangles(self, g: "_Graph", active: np.ndarray, rng: np.random.Generator, edges: np.ndarray):
         """``iterations`` seed edges among active correspondences, drawn with weight (1 + common compatible
         neighbours)^guided, each completed by a third correspondence compatible with both ends (the first of 4
         draws among the seed's partners that is). Returns (i0, j, kk, ok) like the plain draw."""
         start, deg, nbr, k = g.start, g.deg, g.nbr, g.k
-        src, e = g.src, g.edges
-        live = e[active[src[e]] & active[nbr[e]]]  # ascending, as e is
+        src = g.src
+        live = edges[active[src[edges]] & active[nbr[edges]]]  # ascending, as edges are
         if len(live) == 0:
             return None, None, None, None
         w = (1.0 + g.common[live]) ** self.cfg.guided
@@ -240,7 +242,6 @@ class _Graph:
     nbr: np.ndarray
     common: np.ndarray | None = None  # per edge (aligned with nbr): common compatible neighbours of its ends
     keys: np.ndarray | None = None  # sorted src * M + dst of every edge, for adjacency tests
-    edges: np.ndarray | None = None  # ascending edges (src < dst) of the scene cluster being searched
 
     def __post_init__(self):
         self.src = np.repeat(np.arange(len(self.deg)), self.deg)  # first end of every edge (aligned with nbr)
