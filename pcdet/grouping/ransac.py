@@ -9,7 +9,7 @@ removes its correspondences and every correspondence on the surface it explains 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -95,8 +95,9 @@ class RansacGrouper:
             step = -(-len(model.icp_points) // 300)  # a few hundred samples rank poses as well as all of them
             overlap = Overlap(model.icp_points[::step], model.icp_normals[::step], scene.cloud_tree,
                               0.75 * self.common.inlier_distance)
-        graph = _Graph(cs, cm, cn, k, start, deg, nbr, *(_second_order(start, deg, nbr) if c.guided > 0
-                                                          else (None, None)))
+        graph = _Graph(cs, cm, cn, k, start, deg, nbr)
+        if c.guided > 0:
+            graph.common, graph.keys = _second_order(graph.src, deg, nbr)
         active = (cand.reshape(-1) >= 0) & (deg >= 2)
         labels = np.asarray(scene.labels)
         clabel = np.repeat(labels, k)
@@ -117,12 +118,12 @@ class RansacGrouper:
         return out
 
     def _one_instance(self, g: "_Graph", active: np.ndarray, diameter: float, rng: np.random.Generator,
-                      overlap: "Overlap | None", *, edges: np.ndarray | None = None
-                      ) -> list[tuple[np.ndarray, np.ndarray]]:
+                      overlap: "Overlap | None", *, edges: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         """The best triplet poses among ``active`` correspondences, each refit on its inliers: the best first,
         then up to ``alternatives`` others that differ from every pose before them (rotation > 10 degrees or
         translation > a fifth of the diameter), for verification to choose from. Empty when none has support.
-        ``edges``: the cluster's seed edges (``_seed_edges``), from which guided rounds draw.
+        ``edges``: the cluster's seed edges (``_seed_edges``), from which guided rounds draw (unused by plain
+        RANSAC).
 
         Triplets are ranked by the distinct scene keypoints they explain among the seed's compatible partners;
         with an ``overlap`` score, the ``rescore`` best of them are refit and re-ranked by it."""
@@ -242,9 +243,10 @@ class _Graph:
     nbr: np.ndarray
     common: np.ndarray | None = None  # per edge (aligned with nbr): common compatible neighbours of its ends
     keys: np.ndarray | None = None  # sorted src * M + dst of every edge, for adjacency tests
+    src: np.ndarray = field(init=False, repr=False)  # first end of every edge (aligned with nbr)
 
     def __post_init__(self):
-        self.src = np.repeat(np.arange(len(self.deg)), self.deg)  # first end of every edge (aligned with nbr)
+        self.src = np.repeat(np.arange(len(self.deg), dtype=np.int64), self.deg)
 
 
 def _seed_edges(g: _Graph, clabel: np.ndarray) -> dict:
@@ -259,13 +261,13 @@ def _seed_edges(g: _Graph, clabel: np.ndarray) -> dict:
     return {int(lab[a]): e[a:b] for a, b in zip(cut, np.r_[cut[1:], len(e)])}
 
 
-def _second_order(start: np.ndarray, deg: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _second_order(src: np.ndarray, deg: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per edge of the CSR compatibility graph, the number of correspondences compatible with both its ends
-    (SC^2, Chen et al. 2022), and the sorted edge keys src * M + dst (``nbr`` is sorted within each row)."""
+    (SC^2, Chen et al. 2022), and the sorted edge keys src * M + dst (``nbr`` is sorted within each row; ``src``
+    is each edge's first end, ``_Graph.src``)."""
     import scipy.sparse as sparse
 
     M = len(deg)
-    src = np.repeat(np.arange(M, dtype=np.int64), deg)
     keys = src * M + nbr
     A = sparse.csr_matrix((np.ones(len(nbr), np.float32), nbr, np.r_[0, np.cumsum(deg)]), shape=(M, M))
     # A^2 counts common neighbours of every pair; masked by A, only the edges' (those with any) remain
