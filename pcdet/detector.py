@@ -26,6 +26,7 @@ from .grouping import Hypothesis, make_grouper
 from .grouping.common import distinct_poses, distinct_surfaces
 from .keypoints import select_keypoints, voxel_keypoint_levels
 from .library import ModelLibrary
+from .look_alikes import Family, look_alike_families, transfer
 from .matching import Candidates, LibraryIndex, match_features, match_library
 from .prepared_model import PreparedModel
 from .preprocess import preprocess
@@ -171,6 +172,11 @@ class Detector:
         self.grouper = make_grouper(self.config.grouping)
         icp_spacing = 2 * self.config.preprocess.voxel
         self.models = [PreparedModel.build(m, i, icp_spacing=icp_spacing) for i, m in enumerate(library)]
+        # look-alikes (one shape at several sizes) are grouped once, for their family's representative
+        self.families: list[Family] = look_alike_families(
+            [pm.model.points for pm in self.models], [pm.reference for pm in self.models],
+            [pm.model.diameter for pm in self.models], self.config.grouping.look_alike)
+        self._family = {m: f for f in self.families for m in f.members}
         self._indexes: dict[tuple[int, ...], LibraryIndex] = {}
 
     def __repr__(self) -> str:
@@ -195,6 +201,14 @@ class Detector:
         cfg = self.config
         return max(cfg.keypoints.spacing, pm.model.diameter / cfg.grouping.grid_per_diameter)
 
+    def grouped(self, models: list[PreparedModel]) -> list[PreparedModel]:
+        """The models whose correspondences are grouped to find ``models``: the representative of each family of
+        look-alikes (``look_alikes``) with a member among them, in library order (each model itself when the
+        library has no look-alikes)."""
+        want = {pm.index for pm in models}
+        reps = sorted(f.representative for f in self.families if want.intersection(f.members))
+        return [self.models[i] for i in reps]
+
     def scene(self, frame: Frame, tm: _Timer | None = None, models: list[PreparedModel] | None = None) -> Scene:
         """The frame's ``Scene`` for finding ``models`` (default: all): preprocessed cloud (the support's height
         set by the largest of them), keypoints and their FPFH; with a colour image, the keypoints' chromaticity,
@@ -203,9 +217,10 @@ class Detector:
         Voxel keypoints are chosen at the finest model's grid step and, at once, at every grid step
         ``OWN_GRID_RATIO`` times coarser or more (``voxel_keypoint_levels``): a large model beside small ones
         groups the keypoints it groups when searched alone, not one arbitrary sample in several of the finest
-        grid; the descriptors are computed once, on the union."""
+        grid; the descriptors are computed once, on the union. Look-alikes take their representative's grid."""
         cfg, tm = self.config, tm or _Timer()
         models = self.models if models is None else models
+        grouped = self.grouped(models)
         with tm("preprocess"):
             size = max((pm.model.diameter for pm in models), default=0.3)
             cloud = preprocess(frame, cfg.preprocess, cfg.seed, model_size=size)
@@ -213,8 +228,8 @@ class Detector:
             levels = None
             if cfg.keypoints.method == "voxel":
                 # a step under OWN_GRID_RATIO times the finest takes the finest keypoints, thinned (most of them)
-                fine = self.keypoint_spacing(models)
-                own = [s for s in (self.grid_step(pm) for pm in models) if s >= OWN_GRID_RATIO * fine]
+                fine = self.keypoint_spacing(grouped)
+                own = [s for s in (self.grid_step(pm) for pm in grouped) if s >= OWN_GRID_RATIO * fine]
                 kp, levels = voxel_keypoint_levels(cloud.points, own + [fine])
             else:
                 kp = select_keypoints(cloud.points, cfg.keypoints)
@@ -289,6 +304,28 @@ class Detector:
 
             return [h for hs in self._map(group, models) for h in hs]
 
+    def _look_alike_hypotheses(self, raw: list[Hypothesis], searched: set[int]) -> tuple[list[Hypothesis], list[int]]:
+        """The raw hypotheses of the grouped models as hypotheses of each searched member of their family (a
+        look-alike's pose moved by ``look_alikes.transfer``; its correspondences are the representative's), in
+        model order and then in the order found; and for each, the index into ``raw`` it came from. Without
+        look-alikes this is ``raw`` itself."""
+        by_model: dict[int, list[int]] = {}
+        for i, h in enumerate(raw):
+            for m in self._family[h.model_index].members:
+                if m in searched:
+                    by_model.setdefault(m, []).append(i)
+        hyps, source = [], []
+        for m in sorted(by_model):
+            for i in by_model[m]:
+                h = raw[i]
+                if m != h.model_index:
+                    rep = self.models[h.model_index]
+                    h = Hypothesis(m, transfer(h.T_scene_model, rep.reference, self.models[m].reference), h.inliers,
+                                   h.group)
+                hyps.append(h)
+                source.append(i)
+        return hyps, source
+
     def _library_index(self, models: list[PreparedModel]) -> LibraryIndex:
         """The descriptor index over ``models``, built on first use for each set of models searched."""
         key = tuple(pm.index for pm in models)
@@ -305,7 +342,9 @@ class Detector:
         ratio = np.array([vers[j].n_violations / max(vers[j].n_supported, 1) for j in order])
         terms = candidate_terms(scene.points, scene.tree, pts, ratio, v.explain_radius, v.clutter_radius,
                                 plane=scene.plane, scene_normals=scene.normals)
-        conflicts = same_object_conflicts(terms, [hyps[j].model_index for j in order], v.conflict_overlap)
+        # two sizes of one shape on one spot are one object, as two poses of one model are
+        family = [self._family[hyps[j].model_index].representative for j in order]
+        conflicts = same_object_conflicts(terms, family, v.conflict_overlap)
         chosen, _ = select(terms, v.duplicate_weight, v.clutter_weight, v.violation_weight, conflicts=conflicts)
         return [order[i] for i in sorted(chosen)]
 
@@ -353,7 +392,9 @@ class Detector:
         spots = None if targets is None else {pm.index: targets[pm.model.obj_id] for pm in models}
         scene = self.scene(frame, tm, models)
         stats = {"scene_points": len(scene.points), "scene_keypoints": len(scene.keypoints)}
-        hyps = self._hypotheses(scene, models, tm, trace)
+        raw = self._hypotheses(scene, self.grouped(models), tm, trace)
+        # a look-alike takes its representative's raw poses
+        hyps, source = self._look_alike_hypotheses(raw, {pm.index for pm in models})
         stats["hypotheses"] = len(hyps)
         if trace is not None:
             trace.scene, trace.hypotheses = scene, list(hyps)
@@ -361,8 +402,12 @@ class Detector:
             stats["refined"] = stats["detections"] = 0
             return DetectionResult([], tm.t, stats)
         with tm("verify"):
-            # cheap first look at the raw poses: only plausible ones are worth an ICP
-            pre = self._map(lambda h: self._verify(frame, scene, h.model_index, h.T_scene_model, stride=2), hyps)
+            # cheap first look at the raw poses (a look-alike's is its representative's): only plausible ones are
+            # worth an ICP
+            used = sorted(set(source))
+            looks = dict(zip(used, self._map(
+                lambda i: self._verify(frame, scene, raw[i].model_index, raw[i].T_scene_model, stride=2), used)))
+            pre = [looks[i] for i in source]
         # a short coarse ICP for the best raw hypotheses of each model, then the full ICP for the best few
         rc = cfg.refine
         plausible = [j for j, v in enumerate(pre) if v.score >= cfg.verify.prefilter and v.n_supported > 0]

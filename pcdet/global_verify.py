@@ -128,8 +128,8 @@ def select(terms: GlobalTerms, w_dup: float, w_clutter: float, w_viol: float, ma
 
 
 def same_object_conflicts(terms: GlobalTerms, groups: list[int], max_overlap: float) -> np.ndarray:
-    """(H, H) bool: candidates of the same group (model) whose explained scene points overlap by more than
-    ``max_overlap`` of the smaller set."""
+    """(H, H) bool: candidates of the same group (a model, or a family of look-alikes) whose explained scene points
+    overlap by more than ``max_overlap`` of the smaller set."""
     H = len(groups)
     out = np.zeros((H, H), bool)
     for a in range(H):

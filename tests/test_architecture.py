@@ -14,7 +14,7 @@ LAYERS = [
     ("utilities", ["errors", "params", "_o3d", "resources", "align", "camera", "cloud", "pairs", "lrf", "render",
                    "sensor", "metrics", "trajectory", "io", "colour", "blas"]),
     ("frames and readers", ["frame", "datasets"]),
-    ("stages", ["preprocess", "keypoints", "features", "matching", "grouping", "refine", "verify",
+    ("stages", ["preprocess", "keypoints", "features", "matching", "grouping", "refine", "verify", "look_alikes",
                 "global_verify", "odometry", "scene", "model_views", "model", "prepared_model", "image"]),
     ("configuration and library", ["config", "model_cache", "library"]),
     ("composers", ["detector", "register", "tracking", "runner", "executors", "evaluate", "synth", "viz",

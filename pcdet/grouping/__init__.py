@@ -58,6 +58,11 @@ class GroupingCommon:
     grid_per_diameter: float = param(12.0, "scene keypoints used for grouping are at least diameter / this apart")
     max_keypoints: int = param(1500, "scene keypoints each model groups at most: those whose candidates are nearest in "
                                   "FPFH space (0: all)")
+    look_alike: float = param(0.003, "m; models of one shape at other sizes (each centred on its bounding box in "
+                                     "its own frame, their samples this close on average at the smaller one's size, "
+                                     "sizes under 1.25 times apart) are grouped once, for the family's middle-sized "
+                                     "member, and every member takes its raw poses (0: each model grouped on its "
+                                     "own)")
 
     def __post_init__(self):
         if self.method not in GROUPERS:
@@ -66,6 +71,8 @@ class GroupingCommon:
         check_positive(self, "inlier_distance", "min_inliers", "grid_per_diameter")
         if self.max_keypoints < 0:
             raise ConfigError(f"GroupingConfig.max_keypoints must be >= 0, got {self.max_keypoints}")
+        if self.look_alike < 0:
+            raise ConfigError(f"GroupingConfig.look_alike must be >= 0 (0: off), got {self.look_alike}")
 
 
 # the shared fields plus one nested section per registered grouper: a new grouper needs no edit here

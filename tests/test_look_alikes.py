@@ -1,0 +1,137 @@
+"""Look-alike models (one shape at several sizes): which models form a family, and how a pose moves between them;
+and in the detector, that a family is grouped once and each member is still refined and verified on its own."""
+import numpy as np
+import trimesh
+
+from pcdet.align import transform
+from pcdet.config import PipelineConfig
+from pcdet.datasets.bop import BopDataset
+from pcdet.detector import Detector
+from pcdet.library import ModelLibrary
+from pcdet.look_alikes import MAX_SCALE, look_alike_families, transfer
+from pcdet.metrics import adds
+
+from .conftest import MODELS, random_pose
+
+
+def _samples(mesh: trimesh.Trimesh, spacing: float = 0.004) -> np.ndarray:
+    """(N, 3) surface samples about ``spacing`` apart, the same density at every size (as model points are)."""
+    n = int(mesh.area / spacing**2)
+    return trimesh.sample.sample_surface_even(mesh, n, seed=0)[0]
+
+
+def _families(meshes):
+    pts = [_samples(m) for m in meshes]
+    centres = [(p.max(0) + p.min(0)) / 2 for p in pts]
+    diam = [float(np.linalg.norm(np.ptp(p, axis=0))) for p in pts]
+    return look_alike_families(pts, centres, diam, 0.003)
+
+
+def _scaled(mesh: trimesh.Trimesh, s: float) -> trimesh.Trimesh:
+    m = mesh.copy()
+    m.apply_scale(s)
+    return m
+
+
+def test_scaled_copies_form_one_family_around_the_middle_size_in_any_order():
+    """Copies of a box scaled by 0.92 and 1.08 join it, with the box (the middle size) grouped for all three; a
+    cylinder of about the same size, the box turned in its own frame, and a copy 1.4 times larger (beyond
+    ``MAX_SCALE`` of every other size) stay on their own. Listing the models in another order changes nothing but the indices."""
+    box = trimesh.creation.box((0.08, 0.05, 0.03))
+    turned = box.copy()
+    turned.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 0, 1]))
+    meshes = [_scaled(box, 0.92), trimesh.creation.cylinder(0.03, 0.08), box, turned, _scaled(box, 1.08),
+              _scaled(box, 1.4)]
+    assert 1.4 / 1.08 > MAX_SCALE
+    fams = _families(meshes)
+    assert [(f.representative, f.members) for f in fams] == [(2, (0, 2, 4)), (1, (1,)), (3, (3,)), (5, (5,))]
+    order = [5, 4, 3, 2, 1, 0]  # the same models listed backwards: the box is at 3, its copies at 1 and 5
+    back = _families([meshes[i] for i in order])
+    assert [(f.representative, f.members) for f in back] == [(0, (0,)), (3, (1, 3, 5)), (2, (2,)), (4, (4,))]
+
+
+def test_distance_zero_keeps_every_model_on_its_own():
+    box = trimesh.creation.box((0.08, 0.05, 0.03))
+    pts = [_samples(box), _samples(_scaled(box, 1.08))]
+    fams = look_alike_families(pts, [np.zeros(3)] * 2, [0.1, 0.108], 0.0)
+    assert [(f.representative, f.members) for f in fams] == [(0, (0,)), (1, (1,))]
+
+
+def test_transfer_puts_the_members_box_centre_where_the_representatives_was(rng):
+    """A pose of the representative, moved to a member whose box centre is elsewhere in its own frame, keeps the
+    rotation and maps the member's centre to the scene point the representative's centre was at (to 1e-12 m)."""
+    T = random_pose(rng)
+    c_rep, c_member = np.array([0.01, -0.02, 0.03]), np.array([0.011, -0.0216, 0.0324])
+    Tm = transfer(T, c_rep, c_member)
+    np.testing.assert_array_equal(Tm[:3, :3], T[:3, :3])
+    np.testing.assert_allclose(transform(Tm, c_member[None]), transform(T, c_rep[None]), atol=1e-12)
+
+
+def _with_copies(tmp_path, scales=(0.92, 1.08)):
+    """The six shipped parts and, for the first, copies at ``scales`` (ids 101, 201, ...), as a BOP model folder."""
+    import json
+    import shutil
+
+    folder = tmp_path / "models"
+    shutil.copytree(MODELS, folder)
+    info = json.loads((folder / "models_info.json").read_text())
+    base = trimesh.load(folder / "obj_000001.ply", process=False)
+    for n, s in enumerate(scales, start=1):
+        _scaled(base, s).export(folder / f"obj_{100 * n + 1:06d}.ply")
+        info[str(100 * n + 1)] = {**info["1"], "name": f"bracket x{s}", "diameter": info["1"]["diameter"] * s}
+    (folder / "models_info.json").write_text(json.dumps(info))
+    return folder
+
+
+def test_a_family_is_grouped_once_and_each_size_verified_on_its_own(tmp_path, synth_small, library):
+    """With two scaled copies of the bracket in the library, grouping runs for the six parts only (eight with
+    ``grouping.look_alike = 0``), every object the six-part library finds is found again as the same model
+    within 5 mm ADD-S, and no scaled bracket is reported (they are only in the library)."""
+    cfg = PipelineConfig(seed=4)
+    big = ModelLibrary.from_folder(_with_copies(tmp_path), cfg)
+    ds = BopDataset(synth_small)
+    ref = next(r for r in ds.images if any(g["obj_id"] == 1 for g in ds.gt(r)))
+    frame = ds.frame(ref)
+    calls = {}
+    for name, lib, c in (("parts", library, cfg), ("families", big, cfg),
+                         ("each", big, cfg.replace(grouping={"look_alike": 0.0}))):
+        det = Detector(lib, c, workers=1)
+        group = det.grouper.group
+        calls[name] = []
+        det.grouper.group = lambda view, pm, *a, _n=calls[name], _g=group, **kw: _n.append(pm.model.obj_id) or _g(
+            view, pm, *a, **kw)
+        res = det.detect(frame)
+        if name == "parts":
+            plain = res.detections
+        elif name == "families":
+            with_copies = res.detections
+    assert sorted(calls["families"]) == sorted(calls["parts"]) == [1, 2, 3, 4, 5, 6]
+    assert sorted(calls["each"]) == [1, 2, 3, 4, 5, 6, 101, 201]
+    assert plain and all(d.obj_id < 100 for d in with_copies), [d.obj_id for d in with_copies]
+    for d in plain:
+        m = library[library.index_of(d.obj_id)]
+        assert any(e.obj_id == d.obj_id and adds(e.T_cam_model, d.T_cam_model, m.points) < 0.005
+                   for e in with_copies), (d, with_copies)
+
+
+def test_a_scaled_copy_in_view_is_found_at_its_own_size(tmp_path):
+    """A scene holding only the bracket scaled by 1.08, with the bracket and its 0.92 and 1.08 copies in the
+    library: the one detection is the 1.08 copy within 3 mm ADD-S, though grouping ran for the bracket."""
+    from pcdet.synth import SynthConfig, synthesize
+
+    folder = _with_copies(tmp_path)
+    for f in folder.glob("obj_*.ply"):
+        if f.stem not in ("obj_000001", "obj_000101", "obj_000201"):
+            f.unlink()
+    lib = ModelLibrary.from_folder(folder)
+    scene_lib = ModelLibrary([lib[lib.index_of(201)]])
+    out = synthesize(scene_lib, tmp_path / "scene", SynthConfig(scenes=1, objects=1, seed=3))
+    ds = BopDataset(out)
+    ref = ds.images[0]
+    gt = ds.gt(ref)[0]
+    det = Detector(lib, PipelineConfig(seed=4), workers=1)
+    res = det.detect(ds.frame(ref))
+    m = lib[lib.index_of(201)]
+    assert [d.obj_id for d in res.detections] == [201], res
+    assert adds(res.detections[0].T_cam_model, gt["T_cam_model"], m.points) < 0.003
+    assert [f.members for f in det.families] == [(0, 1, 2)] and det.families[0].representative == 0
