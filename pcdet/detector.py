@@ -83,8 +83,9 @@ class DetectionResult:
 @dataclass
 class Trace:
     """What one ``detect`` call went through, for diagnosis (``Detector.detect(..., trace=Trace())`` fills it):
-    the scene; per model index the candidate table (all scene keypoints) and the scene keypoints on the model's
-    grid (``grid``: indices into the scene's keypoints, before ``grouping.max_keypoints``); every raw hypothesis
+    the scene; per grouped model's index (a look-alike has none: its are its representative's, ``family_of``) the
+    candidate table (all scene keypoints) and the scene keypoints on the model's grid (``grid``: indices into the
+    scene's keypoints, before ``grouping.max_keypoints``); every raw hypothesis
     and the quick first-look verification of each; which got the coarse ICP and which were refined (indices
     into ``hypotheses``), their ICP results and verifications; the indices into ``refined`` that passed the
     per-pose checks, in score order, and those finally kept."""
@@ -200,6 +201,10 @@ class Detector:
         finer than ``keypoints.spacing`` (large models need no denser grid)."""
         cfg = self.config
         return max(cfg.keypoints.spacing, pm.model.diameter / cfg.grouping.grid_per_diameter)
+
+    def family_of(self, model_index: int) -> Family:
+        """The family of look-alikes the model at ``model_index`` belongs to (itself alone when it has none)."""
+        return self._family[model_index]
 
     def grouped(self, models: list[PreparedModel]) -> list[PreparedModel]:
         """The models whose correspondences are grouped to find ``models``: the representative of each family of

@@ -22,6 +22,7 @@ import numpy as np
 
 from .align import transform
 from .detector import Detector, Trace
+from .look_alikes import transfer
 from .metrics import add, adds
 
 STAGES = ("found", "verification", "refinement", "first look", "generation", "keypoints")
@@ -79,19 +80,23 @@ def diagnose_frame(det: Detector, frame, gts: list[dict], targets: dict | None, 
         def err(Te):
             return err_fn(Te, T, m.points) / m.diameter
 
+        # a look-alike's keypoint grid and matches are its representative's (posed with its box centre at the
+        # member's)
+        rep = det.family_of(mi).representative
         on = np.zeros(len(kp), bool)
         if len(kp):
             from scipy.spatial import cKDTree
 
             d, _ = cKDTree(transform(T, m.points)).query(kp, distance_upper_bound=1.5 * cfg.preprocess.voxel)
             on = np.isfinite(d)
-            if mi in trace.grid:  # only the keypoints on the model's own grid (the scene describes a union of grids)
-                on &= np.isin(np.arange(len(kp)), trace.grid[mi])
+            if rep in trace.grid:  # only the keypoints on the grid it grouped (the scene describes a union of grids)
+                on &= np.isin(np.arange(len(kp)), trace.grid[rep])
         matched = 0
-        cands = trace.candidates.get(mi)
+        cands = trace.candidates.get(rep)
         if cands is not None and on.any():
             c = cands.model[on]
-            posed = transform(T, m.kp_points[np.maximum(c, 0).reshape(-1)]).reshape(*c.shape, 3)
+            T_rep = T if rep == mi else transfer(T, det.models[mi].reference, det.models[rep].reference)
+            posed = transform(T_rep, det.library[rep].kp_points[np.maximum(c, 0).reshape(-1)]).reshape(*c.shape, 3)
             ok = (c >= 0) & (np.linalg.norm(posed - kp[on][:, None], axis=2) < cfg.grouping.inlier_distance)
             matched = int(ok.any(axis=1).sum())
         raw = [(j, err(h.T_scene_model)) for j, h in enumerate(trace.hypotheses) if h.model_index == mi]

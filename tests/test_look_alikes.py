@@ -7,6 +7,7 @@ from pcdet.align import transform
 from pcdet.config import PipelineConfig
 from pcdet.datasets.bop import BopDataset
 from pcdet.detector import Detector
+from pcdet.diagnose import diagnose_frame
 from pcdet.library import ModelLibrary
 from pcdet.look_alikes import MAX_SCALE, look_alike_families, transfer
 from pcdet.metrics import adds
@@ -135,3 +136,6 @@ def test_a_scaled_copy_in_view_is_found_at_its_own_size(tmp_path):
     assert [d.obj_id for d in res.detections] == [201], res
     assert adds(res.detections[0].T_cam_model, gt["T_cam_model"], m.points) < 0.003
     assert [f.members for f in det.families] == [(0, 1, 2)] and det.families[0].representative == 0
+    # the diagnosis counts the copy's matches through the bracket's candidate table
+    diag = diagnose_frame(det, ds.frame(ref), [gt], None)[0]
+    assert diag.stage == "found" and diag.keypoints_matched >= 3, diag
