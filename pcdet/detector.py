@@ -32,7 +32,7 @@ from .prepared_model import PreparedModel
 from .preprocess import preprocess
 from .refine import RefineConfig, RegistrationResult, icp
 from .scene import Scene, SceneKeypoints
-from .verify import Verification, bbox_pixels, resolve_conflicts, verify
+from .verify import Verification, bbox_pixels, continuing_surface, resolve_conflicts, size_fit, verify
 
 
 @dataclass
@@ -353,6 +353,35 @@ class Detector:
         chosen, _ = select(terms, v.duplicate_weight, v.clutter_weight, v.violation_weight, conflicts=conflicts)
         return [order[i] for i in sorted(chosen)]
 
+    def _one_size_per_spot(self, frame: Frame, order: list[int], hyps: list[Hypothesis],
+                           regs: list[RegistrationResult], vers: list[Verification]) -> list[int]:
+        """``order`` (indices of verified candidates) without the look-alikes beaten on their spot: where two
+        sizes of one shape (members of one family) claim the same pixels (more than ``verify.conflict_overlap`` of
+        the smaller support), only the size whose outline fits best stays (``verify.size_fit``, ties by index).
+        The verification score alone prefers a model slightly too small: all of it lies on the object."""
+        v = self.config.verify
+        multi = [j for j in order if len(self._family[hyps[j].model_index].members) > 1]
+        if len(multi) < 2:
+            return order
+
+        def fit(j: int) -> float:
+            mi = hyps[j].model_index
+            cont = continuing_surface(self.library[mi], regs[j].T_target_source, frame.depth, frame.camera,
+                                      tolerance=v.depth_tolerance, ring=v.size_ring,
+                                      spacing=self.config.preprocess.voxel, caster=self.models[mi].caster)
+            return size_fit(vers[j], cont)
+
+        fits = dict(zip(multi, self._map(fit, multi)))
+        kept: list[int] = []
+        for j in sorted(multi, key=lambda j: (-fits[j], j)):
+            mj, sj = hyps[j].model_index, vers[j].support
+            if not any(hyps[k].model_index != mj and self._family[hyps[k].model_index] is self._family[mj]
+                       and len(np.intersect1d(sj, vers[k].support, assume_unique=True))
+                       > v.conflict_overlap * min(len(sj), len(vers[k].support)) for k in kept):
+                kept.append(j)
+        beaten = set(multi) - set(kept)
+        return [j for j in order if j not in beaten]
+
     def _verify(self, frame: Frame, scene: Scene | None, model_index: int, T_cam_model: np.ndarray,
                 stride: int = 1) -> Verification:
         cfg = self.config
@@ -454,6 +483,7 @@ class Detector:
                 order = [j for j in order if vers[j].accepted(cfg.verify)]
             else:
                 order = [j for j in order if vers[j].n_supported > 0]
+            order = self._one_size_per_spot(frame, order, hyps, regs, vers)
             if targets is None and cfg.verify.selection == "global":
                 kept = self._select_global(scene, order, hyps, regs, vers)
             else:

@@ -45,9 +45,12 @@ class VerifyConfig:
     duplicate_weight: float = param(1.0, "global: cost of each scene point explained twice")
     clutter_weight: float = param(5.0, "global: cost of each clutter point no chosen detection explains")
     violation_weight: float = param(1.0, "global: cost of see-through evidence (in scene points)")
+    size_ring: float = param(0.003, "m; look-alikes: of two sizes of one shape on one spot, the one whose outline "
+                                    "fits is kept, counting against each the pixels this far outside its outline "
+                                    "where the measured surface runs on (size_fit)")
 
     def __post_init__(self):
-        check_positive(self, "depth_tolerance", "min_supported", "explain_radius", "clutter_radius")
+        check_positive(self, "depth_tolerance", "min_supported", "explain_radius", "clutter_radius", "size_ring")
         for n in ("min_score", "max_violation", "conflict_overlap", "prefilter", "max_penetration"):
             check_range(self, n, 0, 1)
         if self.selection not in ("threshold", "global"):
@@ -150,6 +153,48 @@ def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camer
     nu = int((~known).sum())
     score = ns / max(ns + nv + 0.5 * no + 0.25 * nu, 1.0) * (1.0 - pen) ** 2
     return Verification(score, ns / max(ns + nv, 1), ns / max(len(pix), 1), len(pix), ns, no, nv, pen, pix[sup])
+
+
+def continuing_surface(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camera: Camera, *,
+                       tolerance: float, ring: float, spacing: float = 0.004, caster: MeshCaster | None = None) -> int:
+    """Pixels within ``ring`` m (at the model's median depth) outside the outline of ``model`` rendered at
+    ``T_cam_model`` where the measured ``depth`` (H, W) m lies within ``tolerance`` m of the model's depth at the
+    nearest pixel of its outline: the measured surface runs on past the model's edge. A model too small for the
+    object it sits on has such a rim all round; a model of the right size mostly sees the background step away, an
+    occluder or its support there."""
+    from scipy import ndimage
+
+    P = transform(T_cam_model, model.points)
+    front = P[:, 2] > 1e-3
+    if not front.any():
+        return 0
+    px = max(1, int(round(ring * camera.fx / float(np.median(P[front, 2])))))
+    box = bbox_pixels(camera, P, 1, margin=px + 1)
+    if box is None:
+        return 0
+    if model.is_mesh:
+        rv = (caster.depth_at(camera, T_cam_model, box) if caster is not None
+              else mesh_depth_at(camera, model.vertices, model.faces, T_cam_model, box))
+    else:
+        rv = render_points(camera, P, spacing).reshape(-1)[box]
+    rows, cols = np.divmod(box, camera.width)
+    shape = (rows[-1] - rows[0] + 1, cols[-1] - cols[0] + 1)  # the box is a full rectangle, row by row
+    R, D = rv.reshape(shape), depth.reshape(-1)[box].reshape(shape)
+    inside = R > 0
+    if not inside.any():
+        return 0
+    rim = ndimage.binary_dilation(inside, iterations=px) & ~inside
+    _, (iy, ix) = ndimage.distance_transform_edt(~inside, return_indices=True)
+    return int((rim & (D > 0) & (np.abs(D - R[iy, ix]) <= tolerance)).sum())
+
+
+def size_fit(v: Verification, continuing: int) -> float:
+    """The verification score with ``continuing`` pixels (``continuing_surface``) counted against the pose as
+    see-through pixels are: a model too large sees through past the object's edge, one too small leaves the
+    object's surface running on past its own. In [0, 1]."""
+    unknown = v.n_rendered - v.n_supported - v.n_occluded - v.n_violations
+    den = v.n_supported + v.n_violations + 0.5 * v.n_occluded + 0.25 * unknown + continuing
+    return v.n_supported / max(den, 1.0) * (1.0 - v.penetration) ** 2
 
 
 def resolve_conflicts(order: list[int], supports: list[np.ndarray], max_overlap: float, n_pixels: int) -> list[int]:

@@ -50,3 +50,41 @@ def test_conflicts():
     sup = [np.arange(0, 100), np.arange(50, 150), np.arange(200, 260)]
     assert resolve_conflicts([0, 1, 2], sup, 0.3, 300) == [0, 2]  # 1 overlaps 0 by 50 %
     assert resolve_conflicts([1, 0, 2], sup, 0.6, 300) == [1, 0, 2]
+
+
+def test_size_fit_prefers_the_right_size_of_a_box_over_a_smaller_or_larger_copy():
+    """A box 8 x 6 x 4 cm with its front face at 0.58 m before a wall at 0.9 m, and copies scaled by 0.9 and 1.1
+    placed with their front faces on the box's. The small copy lies wholly on the box (score as high as the box's)
+    but the box's face runs on for 3-4 mm past its outline: a rim of continuing pixels. The large copy's rim sees
+    the wall behind. ``size_fit`` ranks the box first; the verification score alone does not tell it from the small
+    copy (within 0.01)."""
+    import trimesh
+
+    from pcdet.library import ModelLibrary
+    from pcdet.verify import continuing_surface, size_fit
+
+    box = trimesh.creation.box((0.08, 0.06, 0.04))
+    small, large = box.copy(), box.copy()
+    small.apply_scale(0.9)
+    large.apply_scale(1.1)
+    lib = ModelLibrary.from_objects({"box": box, "small": small, "large": large})
+    w = trimesh.creation.box((3, 3, 0.01))
+    Tw = np.eye(4)
+    Tw[2, 3] = 0.9
+    poses = []
+    for s in (1.0, 0.9, 1.1):
+        T = np.eye(4)
+        T[2, 3] = 0.58 + s * 0.02  # the front face (z = -0.02 s in the model) at 0.58 m
+        poses.append(T)
+    depth = render_meshes(KINECT, [(box.vertices, box.faces, poses[0]), (w.vertices, w.faces, Tw)]).depth
+    cfg = VerifyConfig()
+    out = {}
+    for m, T in zip(lib, poses):
+        v = verify(m, T, depth, KINECT, cfg)
+        cont = continuing_surface(m, T, depth, KINECT, tolerance=cfg.depth_tolerance, ring=cfg.size_ring)
+        out[m.name] = (v.score, cont, size_fit(v, cont))
+    assert out["box"][1] < 10 and out["small"][1] > 200 and out["large"][1] < 10, out
+    assert abs(out["box"][0] - out["small"][0]) < 0.01, out
+    assert out["box"][2] > out["small"][2] + 0.05 and out["box"][2] > out["large"][2] + 0.05, out
+    assert size_fit(verify(lib[0], poses[0], depth, KINECT, cfg), 0) == verify(lib[0], poses[0], depth, KINECT,
+                                                                                 cfg).score
