@@ -1,8 +1,9 @@
 """The detector: the only place that knows the order of the stages.
 
 preprocess -> keypoints -> features (a ``Scene``) -> matching and grouping per model (a ``Grouper`` from the
-registry, on ``PreparedModel`` s) -> a quick look at each raw pose -> ICP on the best few per model ->
-verification -> selection (global or by threshold).
+registry, on ``PreparedModel`` s; once per family of look-alikes, whose members take the raw poses) -> a quick
+look at each raw pose -> ICP on the best few per model -> verification -> one size per spot among look-alikes ->
+selection (global or by threshold).
 """
 from __future__ import annotations
 
@@ -83,7 +84,7 @@ class DetectionResult:
 @dataclass
 class Trace:
     """What one ``detect`` call went through, for diagnosis (``Detector.detect(..., trace=Trace())`` fills it):
-    the scene; per grouped model's index (a look-alike has none: its are its representative's, ``family_of``) the
+    the scene; per grouped model's index (a look-alike has no entry: it uses its representative's, ``family_of``) the
     candidate table (all scene keypoints) and the scene keypoints on the model's grid (``grid``: indices into the
     scene's keypoints, before ``grouping.max_keypoints``); every raw hypothesis
     and the quick first-look verification of each; which got the coarse ICP and which were refined (indices

@@ -37,7 +37,8 @@ def _scaled(mesh: trimesh.Trimesh, s: float) -> trimesh.Trimesh:
 def test_scaled_copies_form_one_family_around_the_middle_size_in_any_order():
     """Copies of a box scaled by 0.92 and 1.08 join it, with the box (the middle size) grouped for all three; a
     cylinder of about the same size, the box turned in its own frame, and a copy 1.4 times larger (beyond
-    ``MAX_SCALE`` of every other size) stay on their own. Listing the models in another order changes nothing but the indices."""
+    ``MAX_SCALE`` of every other size) stay on their own. Listing the models in another order changes nothing but
+    the indices."""
     box = trimesh.creation.box((0.08, 0.05, 0.03))
     turned = box.copy()
     turned.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 0, 1]))
@@ -45,7 +46,8 @@ def test_scaled_copies_form_one_family_around_the_middle_size_in_any_order():
               _scaled(box, 1.4)]
     assert 1.4 / 1.08 > MAX_SCALE
     fams = _families(meshes)
-    assert [(f.representative, f.members) for f in fams] == [(2, (0, 2, 4)), (1, (1,)), (3, (3,)), (5, (5,))]
+    expected = [(2, (0, 2, 4)), (1, (1,)), (3, (3,)), (5, (5,))]
+    assert [(f.representative, f.members) for f in fams] == expected
     order = [5, 4, 3, 2, 1, 0]  # the same models listed backwards: the box is at 3, its copies at 1 and 5
     back = _families([meshes[i] for i in order])
     assert [(f.representative, f.members) for f in back] == [(0, (0,)), (3, (1, 3, 5)), (2, (2,)), (4, (4,))]
