@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from .align import transform
 from .camera import Camera
@@ -162,8 +163,6 @@ def continuing_surface(model: ObjectModel, T_cam_model: np.ndarray, depth: np.nd
     nearest pixel of its outline: the measured surface runs on past the model's edge. A model too small for the
     object it sits on has such a rim all round; a model of the right size mostly sees the background step away, an
     occluder or its support there."""
-    from scipy import ndimage
-
     P = transform(T_cam_model, model.points)
     front = P[:, 2] > 1e-3
     if not front.any():
