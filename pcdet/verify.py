@@ -117,6 +117,17 @@ def render_model(model: ObjectModel, T_cam_model: np.ndarray, camera: Camera, *,
     return render_points(camera, pts, spacing)
 
 
+def _mesh_depth(model: ObjectModel, T_cam_model: np.ndarray, camera: Camera, pixels: np.ndarray,
+                caster: MeshCaster | None) -> np.ndarray:
+    """(P,) depth (m, 0 where the ray misses) of the mesh ``model`` at ``T_cam_model`` at the flat ``pixels`` (P,),
+    with the mesh's ray-casting structure when given."""
+    if not len(pixels):
+        return np.zeros(0, np.float32)
+    if caster is not None:
+        return caster.depth_at(camera, T_cam_model, pixels)
+    return mesh_depth_at(camera, model.vertices, model.faces, T_cam_model, pixels)
+
+
 def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camera: Camera, cfg: VerifyConfig, *,
            spacing: float = 0.004, plane: Plane | None = None, stride: int = 1,
            caster: MeshCaster | None = None) -> Verification:
@@ -127,14 +138,8 @@ def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camer
     if model.is_mesh:
         # cast only the rays of the model's bounding box
         box = bbox_pixels(camera, P, stride)
-        if box is None:
-            box = np.zeros(0, np.int64)
-        if not len(box):
-            rv = np.zeros(0)
-        elif caster is not None:
-            rv = caster.depth_at(camera, T_cam_model, box)
-        else:
-            rv = mesh_depth_at(camera, model.vertices, model.faces, T_cam_model, box)
+        box = np.zeros(0, np.int64) if box is None else box
+        rv = _mesh_depth(model, T_cam_model, camera, box, caster)
         hit = rv > 0
         pix, rv = box[hit], rv[hit]
     else:
@@ -172,8 +177,7 @@ def continuing_surface(model: ObjectModel, T_cam_model: np.ndarray, depth: np.nd
     if box is None:
         return 0
     if model.is_mesh:
-        rv = (caster.depth_at(camera, T_cam_model, box) if caster is not None
-              else mesh_depth_at(camera, model.vertices, model.faces, T_cam_model, box))
+        rv = _mesh_depth(model, T_cam_model, camera, box, caster)
     else:
         rv = render_points(camera, P, spacing).reshape(-1)[box]
     rows, cols = np.divmod(box, camera.width)

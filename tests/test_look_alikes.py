@@ -54,10 +54,13 @@ def test_scaled_copies_form_one_family_around_the_middle_size_in_any_order():
 
 
 def test_distance_zero_keeps_every_model_on_its_own():
-    box = trimesh.creation.box((0.08, 0.05, 0.03))
-    pts = [_samples(box), _samples(_scaled(box, 1.08))]
-    fams = look_alike_families(pts, [np.zeros(3)] * 2, [0.1, 0.108], 0.0)
-    assert [(f.representative, f.members) for f in fams] == [(0, (0,)), (1, (1,))]
+    """Two models whose samples are exactly one another's scaled by 1.08 (mean distance 0) are look-alikes at any
+    positive distance, and each on its own at 0."""
+    p = _samples(trimesh.creation.box((0.08, 0.05, 0.03)))
+    pts, centres = [p, 1.08 * p], [np.zeros(3)] * 2
+    diam = [float(np.linalg.norm(np.ptp(q, axis=0))) for q in pts]
+    assert [f.members for f in look_alike_families(pts, centres, diam, 1e-9)] == [(0, 1)]
+    assert [f.members for f in look_alike_families(pts, centres, diam, 0.0)] == [(0,), (1,)]
 
 
 def test_transfer_puts_the_members_box_centre_where_the_representatives_was(rng):
