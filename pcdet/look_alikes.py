@@ -50,32 +50,26 @@ def look_alike_families(points: list[np.ndarray], centres: list[np.ndarray], dia
     if distance > 0:
         unit = [(np.asarray(p, np.float64) - c) / d for p, c, d in zip(points, centres, diameters)]
         box = [np.ptp(u, axis=0) for u in unit]
-        trees: dict[int, cKDTree] = {}
-
-        def tree(i: int) -> cKDTree:
-            if i not in trees:
-                trees[i] = cKDTree(unit[i])
-            return trees[i]
-
+        trees = [cKDTree(u) for u in unit]
         for i in range(n):
             for j in range(i + 1, n):
                 small, big = sorted((diameters[i], diameters[j]))
                 if small <= 0 or big / small >= MAX_SCALE or np.abs(box[i] - box[j]).max() > BOX_TOLERANCE:
                     continue
                 # both ways, at the smaller model's size
-                d = max(tree(j).query(unit[i])[0].mean(), tree(i).query(unit[j])[0].mean()) * small
+                d = max(trees[j].query(unit[i])[0].mean(), trees[i].query(unit[j])[0].mean()) * small
                 if d <= distance:
                     near[i].add(j)
                     near[j].add(i)
+    def rank(i: int, left: set[int]) -> tuple:
+        group = [i, *(near[i] & left)]
+        middle = np.mean(np.log([diameters[g] for g in group]))
+        return -len(group), abs(np.log(diameters[i]) - middle), i
+
     left = set(range(n))
     out = []
     while left:
-        def rank(i: int) -> tuple:
-            group = [i, *(near[i] & left)]
-            middle = np.mean(np.log([diameters[g] for g in group]))
-            return -len(group), abs(np.log(diameters[i]) - middle), i
-
-        rep = min(left, key=rank)
+        rep = min(left, key=lambda i: rank(i, left))
         members = tuple(sorted({rep, *(near[rep] & left)}))
         out.append(Family(rep, members))
         left -= set(members)

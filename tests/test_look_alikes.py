@@ -98,7 +98,7 @@ def test_a_family_is_grouped_once_and_each_size_verified_on_its_own(tmp_path, sy
     ds = BopDataset(synth_small)
     ref = next(r for r in ds.images if any(g["obj_id"] == 1 for g in ds.gt(r)))
     frame = ds.frame(ref)
-    calls = {}
+    calls, found = {}, {}
     for name, lib, c in (("parts", library, cfg), ("families", big, cfg),
                          ("each", big, cfg.replace(grouping={"look_alike": 0.0}))):
         det = Detector(lib, c, workers=1)
@@ -106,11 +106,8 @@ def test_a_family_is_grouped_once_and_each_size_verified_on_its_own(tmp_path, sy
         calls[name] = []
         det.grouper.group = lambda view, pm, *a, _n=calls[name], _g=group, **kw: _n.append(pm.model.obj_id) or _g(
             view, pm, *a, **kw)
-        res = det.detect(frame)
-        if name == "parts":
-            plain = res.detections
-        elif name == "families":
-            with_copies = res.detections
+        found[name] = det.detect(frame).detections
+    plain, with_copies = found["parts"], found["families"]
     assert sorted(calls["families"]) == sorted(calls["parts"]) == [1, 2, 3, 4, 5, 6]
     assert sorted(calls["each"]) == [1, 2, 3, 4, 5, 6, 101, 201]
     assert plain and all(d.obj_id < 100 for d in with_copies), [d.obj_id for d in with_copies]
