@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import minimum_filter
+from scipy.ndimage import binary_erosion, binary_fill_holes, minimum_filter
 
 from .align import transform
 from .camera import Camera
@@ -123,7 +123,8 @@ class MeshCaster:
 
 def render_points(camera: Camera, points_cam: np.ndarray, spacing: float) -> np.ndarray:
     """Z-buffer (N, 3) camera-frame points into an (H, W) float32 depth image (0 where empty), each point
-    splatted over a square of about ``spacing`` metres so that sampled surfaces render without holes."""
+    splatted over a square of about ``spacing`` metres so that sampled surfaces render without holes; the outer
+    outline stays at the outermost points' pixels."""
     p = np.asarray(points_cam, float)
     p = p[p[:, 2] > 1e-6]
     out = np.zeros((camera.height, camera.width), np.float32)
@@ -145,6 +146,12 @@ def render_points(camera: Camera, points_cam: np.ndarray, spacing: float) -> np.
     buf = buf.reshape(h, w)
     if r > 1:
         buf = minimum_filter(buf, size=r)
+        # the splats fill the gaps between samples but draw the outline half a splat wider all round, where a pose
+        # of the right size then sees through: the outer outline goes back to the outermost samples (the silhouette,
+        # its holes filled, eroded by the same square, reflected: for an even r its origin moves back by one pixel)
+        outline = binary_erosion(binary_fill_holes(np.isfinite(buf)), np.ones((r, r), bool), border_value=1,
+                                 origin=r % 2 - 1)
+        buf[~outline] = np.inf
     buf[~np.isfinite(buf)] = 0
     out[v0:v1, u0:u1] = buf
     return out
