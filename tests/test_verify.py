@@ -52,22 +52,12 @@ def test_conflicts():
     assert resolve_conflicts([1, 0, 2], sup, 0.6, 300) == [1, 0, 2]
 
 
-def test_size_fit_prefers_the_right_size_of_a_box_over_a_smaller_or_larger_copy():
-    """A box 8 x 6 x 4 cm with its front face at 0.58 m before a wall at 0.9 m, and copies scaled by 0.9 and 1.1
-    placed with their front faces on the box's. The small copy lies wholly on the box (score as high as the box's)
-    but the box's face runs on for 3-4 mm past its outline: a rim of continuing pixels. The large copy's rim sees
-    the wall behind. ``size_fit`` ranks the box first; the verification score alone does not tell it from the small
-    copy (within 0.01)."""
+def _box_before_wall():
+    """A box 8 x 6 x 4 cm with its front face at 0.58 m before a wall at 0.9 m: (box mesh, rendered depth, the
+    poses of the box and of copies scaled by 0.9 and 1.1 with their front faces on the box's)."""
     import trimesh
 
-    from pcdet.library import ModelLibrary
-    from pcdet.verify import continuing_surface, size_fit
-
     box = trimesh.creation.box((0.08, 0.06, 0.04))
-    small, large = box.copy(), box.copy()
-    small.apply_scale(0.9)
-    large.apply_scale(1.1)
-    lib = ModelLibrary.from_objects({"box": box, "small": small, "large": large})
     w = trimesh.creation.box((3, 3, 0.01))
     Tw = np.eye(4)
     Tw[2, 3] = 0.9
@@ -77,6 +67,23 @@ def test_size_fit_prefers_the_right_size_of_a_box_over_a_smaller_or_larger_copy(
         T[2, 3] = 0.58 + s * 0.02  # the front face (z = -0.02 s in the model) at 0.58 m
         poses.append(T)
     depth = render_meshes(KINECT, [(box.vertices, box.faces, poses[0]), (w.vertices, w.faces, Tw)]).depth
+    return box, depth, poses
+
+
+def test_size_fit_prefers_the_right_size_of_a_box_over_a_smaller_or_larger_copy():
+    """A box 8 x 6 x 4 cm with its front face at 0.58 m before a wall at 0.9 m, and copies scaled by 0.9 and 1.1
+    placed with their front faces on the box's. The small copy lies wholly on the box (score as high as the box's)
+    but the box's face runs on for 3-4 mm past its outline: a rim of continuing pixels. The large copy's rim sees
+    the wall behind. ``size_fit`` ranks the box first; the verification score alone does not tell it from the small
+    copy (within 0.01)."""
+    from pcdet.library import ModelLibrary
+    from pcdet.verify import continuing_surface, size_fit
+
+    box, depth, poses = _box_before_wall()
+    small, large = box.copy(), box.copy()
+    small.apply_scale(0.9)
+    large.apply_scale(1.1)
+    lib = ModelLibrary.from_objects({"box": box, "small": small, "large": large})
     cfg = VerifyConfig()
     out = {}
     for m, T in zip(lib, poses):
@@ -100,19 +107,10 @@ def test_size_fit_prefers_the_right_size_among_point_cloud_copies():
     from pcdet.library import ModelLibrary
     from pcdet.verify import continuing_surface, size_fit
 
-    box = trimesh.creation.box((0.08, 0.06, 0.04))
+    box, depth, poses = _box_before_wall()
     pts, _ = trimesh.sample.sample_surface_even(box, 4000, seed=1)
     lib = ModelLibrary.from_objects({n: trimesh.PointCloud(np.asarray(pts) * s)
                                      for n, s in (("box", 1.0), ("small", 0.9), ("large", 1.1))})
-    w = trimesh.creation.box((3, 3, 0.01))
-    Tw = np.eye(4)
-    Tw[2, 3] = 0.9
-    poses = []
-    for s in (1.0, 0.9, 1.1):
-        T = np.eye(4)
-        T[2, 3] = 0.58 + s * 0.02
-        poses.append(T)
-    depth = render_meshes(KINECT, [(box.vertices, box.faces, poses[0]), (w.vertices, w.faces, Tw)]).depth
     cfg = VerifyConfig()
     fit = {}
     for m, T in zip(lib, poses):
