@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import binary_erosion, binary_fill_holes, minimum_filter
+from scipy.ndimage import label, minimum_filter
 
 from .align import transform
 from .camera import Camera
@@ -147,11 +147,16 @@ def render_points(camera: Camera, points_cam: np.ndarray, spacing: float) -> np.
     if r > 1:
         buf = minimum_filter(buf, size=r)
         # the splats fill the gaps between samples but draw the outline half a splat wider all round, where a pose
-        # of the right size then sees through: the outer outline goes back to the outermost samples (the silhouette,
-        # its holes filled, eroded by the same square, reflected: for an even r its origin moves back by one pixel)
-        outline = binary_erosion(binary_fill_holes(np.isfinite(buf)), np.ones((r, r), bool), border_value=1,
-                                 origin=r % 2 - 1)
-        buf[~outline] = np.inf
+        # of the right size then sees through: the outer outline goes back to the outermost samples. The empty
+        # pixels connected to the buffer's edge are the outside; what is not outside is eroded by the same square
+        # (reflected: for an even r its origin moves back by one pixel), as a separable minimum filter
+        lab, n = label(~np.isfinite(buf))
+        outside = np.zeros(n + 1, bool)
+        outside[np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]])] = True
+        outside[0] = False  # label 0: the filled pixels
+        inner = ~outside[lab]
+        outline = minimum_filter(inner.view(np.uint8), size=r, mode="constant", cval=1, origin=r % 2 - 1)
+        buf[outline == 0] = np.inf
     buf[~np.isfinite(buf)] = 0
     out[v0:v1, u0:u1] = buf
     return out

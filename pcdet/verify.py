@@ -128,6 +128,11 @@ def _mesh_depth(model: ObjectModel, T_cam_model: np.ndarray, camera: Camera, pix
     return mesh_depth_at(camera, model.vertices, model.faces, T_cam_model, pixels)
 
 
+def _score(supported: int, violations: int, occluded: int, unknown: int, penetration: float) -> float:
+    """The verification score from pixel counts (see ``Verification``)."""
+    return supported / max(supported + violations + 0.5 * occluded + 0.25 * unknown, 1.0) * (1.0 - penetration) ** 2
+
+
 def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camera: Camera, cfg: VerifyConfig, *,
            spacing: float = 0.004, plane: Plane | None = None, stride: int = 1,
            caster: MeshCaster | None = None) -> Verification:
@@ -156,8 +161,7 @@ def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camer
     pen = 0.0
     if plane is not None:
         pen = float(np.mean(P @ plane.normal + plane.offset < -tau))
-    nu = int((~known).sum())
-    score = ns / max(ns + nv + 0.5 * no + 0.25 * nu, 1.0) * (1.0 - pen) ** 2
+    score = _score(ns, nv, no, int((~known).sum()), pen)
     return Verification(score, ns / max(ns + nv, 1), ns / max(len(pix), 1), len(pix), ns, no, nv, pen, pix[sup])
 
 
@@ -196,8 +200,7 @@ def size_fit(v: Verification, continuing: int) -> float:
     see-through pixels are: a model too large sees through past the object's edge, one too small leaves the
     object's surface running on past its own. In [0, 1]."""
     unknown = v.n_rendered - v.n_supported - v.n_occluded - v.n_violations
-    den = v.n_supported + v.n_violations + 0.5 * v.n_occluded + 0.25 * unknown + continuing
-    return v.n_supported / max(den, 1.0) * (1.0 - v.penetration) ** 2
+    return _score(v.n_supported, v.n_violations + continuing, v.n_occluded, unknown, v.penetration)
 
 
 def resolve_conflicts(order: list[int], supports: list[np.ndarray], max_overlap: float, n_pixels: int) -> list[int]:
