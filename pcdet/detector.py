@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .align import transform
-from .blas import one_blas_thread
+from .blas import on_one_blas_thread
 from .cloud import estimate_normals, voxel_downsample
 from .colour import chromaticity, colour_within, image_colours
 from .config import PipelineConfig
@@ -406,6 +406,7 @@ class Detector:
         return icp(pm.icp_points, points, normals, T_init, self.config.refine, source_normals=pm.icp_normals,
                    target_tree=tree, viewpoint=np.zeros(3))
 
+    @on_one_blas_thread
     def detect(self, frame: Frame, targets: dict[int, int] | None = None, *, trace: Trace | None = None
                ) -> DetectionResult:
         """Detect objects in ``frame``.
@@ -416,8 +417,7 @@ class Detector:
 
         BLAS runs on one thread meanwhile (``pcdet.blas``): the work is spread over the detector's own threads.
         """
-        with one_blas_thread():
-            return self._detect(frame, targets, trace)
+        return self._detect(frame, targets, trace)
 
     def _detect(self, frame: Frame, targets: dict[int, int] | None, trace: Trace | None) -> DetectionResult:
         cfg = self.config
@@ -512,6 +512,7 @@ class Detector:
         return Detection(m.name, m.obj_id, ver.score, frame.T_input_cam @ reg.T_target_source, n_inliers,
                          reg.fitness, reg.rmse_m, ver.visible_fraction, group)
 
+    @on_one_blas_thread
     def refine(self, frame: Frame, model_index: int, T_cam_model: np.ndarray, *, depth_margin: float = 0.03,
                pixel_margin: int = 8, min_points: int = 50) -> Refinement:
         """Refine a predicted pose of one model in ``frame`` and verify it (tracking between full detections).
@@ -520,7 +521,7 @@ class Detector:
         by ``pixel_margin``) whose depth lies within ``depth_margin`` m of the model's depth range. They are
         gridded and given normals as a scene is, ICP moves the model's samples from ``T_cam_model`` (camera
         frame, 4 x 4), and the result is checked against the depth (every second row and column).
-        ``min_points``: fewer such pixels and there is nothing to refine on.
+        ``min_points``: fewer such pixels and there is nothing to refine on. BLAS runs on one thread meanwhile.
         """
         cfg, cam, depth = self.config, frame.camera, frame.depth
         P = transform(T_cam_model, self.library[model_index].points)

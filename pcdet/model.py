@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .blas import on_one_blas_thread
 from .cloud import diameter as cloud_diameter
 from .cloud import estimate_normals, outward_normals, voxel_downsample
 from .colour import surface_colours
@@ -59,11 +60,12 @@ class ObjectModel:
                 f"{len(self.points)} samples, {len(self.kp_points)} keypoints)")
 
 
+@on_one_blas_thread
 def build_model(source, cfg: DescriptorParams, *, units="auto", obj_id: int = 0, name: str | None = None,
                 seed: int = 0) -> ObjectModel:
     """Compute a model's samples, normals, keypoints and FPFH (no cache). ``source``: a model file, or an
     in-memory mesh or cloud (an (N, 3) array, an open3d or trimesh geometry; see ``io.models.as_geometry``),
-    which then needs a ``name``."""
+    which then needs a ``name``. BLAS runs on one thread meanwhile (``pcdet.blas``)."""
     in_memory = not isinstance(source, (str, Path))
     path = Path(name or "model") if in_memory else Path(source)
     g = as_geometry(source, units, name=str(path))

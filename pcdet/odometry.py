@@ -22,6 +22,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .align import transform
+from .blas import on_one_blas_thread
 from .cloud import estimate_normals, voxel_downsample
 from .errors import ConfigError
 from .frame import Frame
@@ -167,8 +168,10 @@ class Odometry:
         """A frame could not be read: the next step predicts two frames' worth of motion (constant velocity)."""
         self.gap += 1
 
+    @on_one_blas_thread
     def step(self, frame: Frame) -> np.ndarray:
-        """The next frame's ``T_first_cam`` (4, 4), registering it against the previous one (and KISS-ICP's map)."""
+        """The next frame's ``T_first_cam`` (4, 4), registering it against the previous one (and KISS-ICP's map).
+        BLAS runs on one thread meanwhile (``pcdet.blas``)."""
         cfg = self.cfg
         pts, pix = frame.points()
         z = pts[:, 2]

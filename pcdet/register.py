@@ -14,6 +14,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .align import transform
+from .blas import on_one_blas_thread
 from .cloud import diameter as cloud_diameter
 from .cloud import outward_normals, voxel_downsample
 from .config import PipelineConfig, RefineConfig
@@ -80,9 +81,11 @@ def _prepared(points: np.ndarray, normals: np.ndarray | None, voxel: float):
     return p, n
 
 
+@on_one_blas_thread
 def register(source, target, config: RegisterConfig | None = None, *, units="auto") -> Registration:
     """Align ``source`` to ``target`` globally, then refine by ICP. Each is a mesh or cloud file, an (N, 3)
     array of points, an open3d ``PointCloud`` / ``TriangleMesh`` or a trimesh object (``io.models.as_geometry``).
+    BLAS runs on one thread meanwhile (``pcdet.blas``): a second thread only slows its small products.
 
     >>> r = register("bun_zipper_res3.ply", "bun045.ply")
     >>> r.T_target_source  # (4, 4): source points into the target's frame
