@@ -50,10 +50,12 @@ def test_bunny_other_groupings_within_5mm(grouping):
 
 
 @pytest.mark.real
-@pytest.mark.parametrize("a, b", [(0, 24), (144, 168), (0, 48)])
+@pytest.mark.parametrize("a, b", [(0, 24), (144, 168), (0, 48), (240, 288)])
 def test_dragon_scan_to_scan_within_2mm(a, b):
     """Two partial range scans of the Stanford dragon 24 or 48 degrees apart, no initial guess: the source scan's
-    points land within 2 mm RMS of where dragonStandRight.conf puts them (measured 0.4-0.6 mm)."""
+    points land within 2 mm RMS of where dragonStandRight.conf puts them (measured 0.4-0.8 mm). At 240 -> 288 a
+    pose slid along the scan held as many points within ICP's 3 voxels as the right one (25 mm off when the short
+    ICPs were ranked by that): the hypotheses are ranked by the share within 1.5 voxel."""
     d = shared("stanford_scans")
     conf = _conf(d, "dragonStandRight.conf")
     src, tgt = d / f"dragonStandRight_{a}.ply", d / f"dragonStandRight_{b}.ply"
@@ -64,4 +66,4 @@ def test_dragon_scan_to_scan_within_2mm(a, b):
     X = read_cloud(src).points
     err = X @ (r.T_target_source[:3, :3] - T_true[:3, :3]).T + (r.T_target_source[:3, 3] - T_true[:3, 3])
     assert np.sqrt(np.mean(np.sum(err ** 2, axis=1))) < 0.002
-    assert r.fitness > 0.5 and r.coverage > 0.5
+    assert r.fitness > 0.5 and r.coverage > 0.45  # 48 degrees apart, about half of a scan is on the other (0.48)
