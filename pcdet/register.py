@@ -21,6 +21,7 @@ from .config import PipelineConfig, RefineConfig
 from .errors import InputError
 from .features import fpfh
 from .grouping import GROUPERS, make_grouper
+from .grouping.hypothesis import Hypothesis
 from .io.models import Geometry, as_geometry
 from .keypoints import select_keypoints
 from .lrf import shot_lrf
@@ -45,10 +46,11 @@ class RegistrationWarning(UserWarning):
 @dataclass(frozen=True)
 class RegisterConfig:
     """voxel: sampling of both inputs (m; None: 1/40 of the source's diameter); the rest scale with it.
-    k: FPFH candidates per target keypoint (None: 1 for RANSAC, and 3 if that finds no consistent alignment;
-    3 for the other groupers). On the 33 pairs of ``python scripts/bench_register.py``, RANSAC registers 30
-    within 2 mm at k = 1 as at k = 3 (and faster: 0.13 s a pair instead of 0.20 when this was chosen); geometric
-    consistency drops to 27."""
+    k: FPFH candidates per target keypoint (None: 1 for RANSAC, and 3 if that finds no consistent alignment or
+    a doubtful one, with fitness and coverage both under ``LOW_OVERLAP``; 3 for the other groupers). On the 33
+    pairs of ``python scripts/bench_register.py``, RANSAC registered 30 within 2 mm at k = 1 as at k = 3 (and
+    faster: 0.13 s a pair instead of 0.20 when this was chosen); geometric consistency drops to 27. With the retry
+    of doubtful results, 32."""
 
     voxel: float | None = None
     grouping: str = "ransac"
@@ -130,50 +132,67 @@ def register(source, target, config: RegisterConfig | None = None, *, units="aut
     tree = cKDTree(tp)
     scene = SceneKeypoints(tp[tkp], tn[tkp], lrfs=lrf(tp, tkp) if lrf else None, cloud_tree=tree)
     prepared = PreparedModel(model, 0, sp, sn, sp.mean(axis=0), cKDTree(sf))
-    cand = match_features(tf, sf, pc.matching, model_tree=prepared.descriptor_tree)  # target looks up source
-    hyps = grouper.group(scene, prepared, cand, np.random.default_rng(cfg.seed))
-    if not hyps and cfg.k is None and pc.matching.k < 3:  # one candidate each was too few: try three
-        more = dataclasses.replace(pc.matching, k=3)
-        cand = match_features(tf, sf, more, model_tree=prepared.descriptor_tree)
-        hyps = grouper.group(scene, prepared, cand, np.random.default_rng(cfg.seed))
-    t2 = time.perf_counter()
-    if not hyps:
-        raise InputError("no consistent alignment found: do the inputs overlap, and are they in the same units?")
     rc = RefineConfig(iterations=cfg.icp_iterations, max_distance=3 * voxel, kernel=1.5 * voxel)
+    tol = (1e-4, 1e-3 * voxel)  # a step this small is far below the sampling: stop there
+
+    def hypotheses(k: int) -> list[Hypothesis]:
+        cand = match_features(tf, sf, dataclasses.replace(pc.matching, k=k),
+                              model_tree=prepared.descriptor_tree)  # the target looks up the source
+        return grouper.group(scene, prepared, cand, np.random.default_rng(cfg.seed))
+
     def on_target(T: np.ndarray) -> float:  # share of the source samples within 1.5 voxel of the target
         return float(np.isfinite(tree.query(transform(T, sp), distance_upper_bound=1.5 * voxel)[0]).mean())
 
-    best: RegistrationResult | None = None
-    best_h, best_key = None, None
-    tol = (1e-4, 1e-3 * voxel)  # a step this small is far below the sampling: stop there
-    # every hypothesis gets a short ICP, and only the best of them the rest of the iterations. The best is the one
-    # with most of the source on the target within 1.5 voxel (the fitness reported), not within the ICP's own 3
-    # voxels: at that looser reach a pose slid along a scan of a curved object can hold as many points
-    short = dataclasses.replace(rc, iterations=min(SHORT_ICP, rc.iterations))
-    for h in hyps:  # each hypothesis's T_scene_model is a T_target_source
-        r = icp(sp, tp, tn, h.T_scene_model, short, target_tree=tree, tolerance=tol)
-        key = (on_target(r.T_target_source), -r.rmse_m)
-        if best_key is None or key > best_key:
-            best, best_h, best_key = r, h, key
-    if not best.converged and rc.iterations > SHORT_ICP:
-        best = icp(sp, tp, tn, best.T_target_source,
-                   dataclasses.replace(rc, iterations=rc.iterations - SHORT_ICP), target_tree=tree, tolerance=tol)
-    # final polish at tighter distances: the last at half a voxel, so that the rim of the overlap (points
-    # whose partner the other scan never saw) no longer pulls (Open3D's recipe ends at 0.4 voxel)
-    for dist, kern in ((1.5 * voxel, voxel), (0.5 * voxel, 0.5 * voxel)):
-        rc2 = RefineConfig(iterations=cfg.icp_iterations, max_distance=dist, kernel=kern)
-        best = icp(sp, tp, tn, best.T_target_source, rc2, target_tree=tree, tolerance=tol)
+    def refined(hyps: list[Hypothesis]) -> tuple[RegistrationResult, Hypothesis, float, float]:
+        """The best hypothesis refined, the hypothesis, and its fitness and coverage (both at 1.5 voxel)."""
+        # every hypothesis gets a short ICP, and only the best of them the rest of the iterations. The best is the
+        # one with most of the source on the target within 1.5 voxel (the fitness reported), not within the ICP's
+        # own 3 voxels: at that looser reach a pose slid along a scan of a curved object can hold as many points
+        best, best_h, best_key = None, None, None
+        short = dataclasses.replace(rc, iterations=min(SHORT_ICP, rc.iterations))
+        for h in hyps:  # each hypothesis's T_scene_model is a T_target_source
+            r = icp(sp, tp, tn, h.T_scene_model, short, target_tree=tree, tolerance=tol)
+            key = (on_target(r.T_target_source), -r.rmse_m)
+            if best_key is None or key > best_key:
+                best, best_h, best_key = r, h, key
+        if not best.converged and rc.iterations > SHORT_ICP:
+            best = icp(sp, tp, tn, best.T_target_source,
+                       dataclasses.replace(rc, iterations=rc.iterations - SHORT_ICP), target_tree=tree, tolerance=tol)
+        # final polish at tighter distances: the last at half a voxel, so that the rim of the overlap (points
+        # whose partner the other scan never saw) no longer pulls (Open3D's recipe ends at 0.4 voxel)
+        for dist, kern in ((1.5 * voxel, voxel), (0.5 * voxel, 0.5 * voxel)):
+            rc2 = RefineConfig(iterations=cfg.icp_iterations, max_distance=dist, kernel=kern)
+            best = icp(sp, tp, tn, best.T_target_source, rc2, target_tree=tree, tolerance=tol)
+        # both shares at 1.5 voxel, as documented (the last ICP round's own fitness counts only half a voxel)
+        moved = transform(best.T_target_source, sp)
+        coverage = float(np.isfinite(cKDTree(moved).query(tp, distance_upper_bound=1.5 * voxel)[0]).mean())
+        return best, best_h, on_target(best.T_target_source), coverage
+
+    hyps = hypotheses(pc.matching.k)
+    more = cfg.k is None and pc.matching.k < 3  # one candidate each may be too few: three then
+    if not hyps and more:
+        hyps, more = hypotheses(3), False
+    t2 = time.perf_counter()
+    if not hyps:
+        raise InputError("no consistent alignment found: do the inputs overlap, and are they in the same units?")
+    best, best_h, fitness, coverage = refined(hyps)
     t3 = time.perf_counter()
-    # both shares at 1.5 voxel, as documented (the last ICP round's own fitness counts only half a voxel)
-    moved = transform(best.T_target_source, sp)
-    fitness = on_target(best.T_target_source)
-    coverage = float(np.isfinite(cKDTree(moved).query(tp, distance_upper_bound=1.5 * voxel)[0]).mean())
+    timing = {"load": t1 - t0, "global": t2 - t1, "icp": t3 - t2}
+    if more and max(fitness, coverage) < LOW_OVERLAP:
+        # a doubtful alignment: with three candidates per keypoint the overlap may show more correct matches (on
+        # scans 48 degrees apart the one candidate left too few); the larger fitness is kept
+        again = hypotheses(3)
+        if again:
+            second = refined(again)
+            if second[2] > fitness:
+                hyps, (best, best_h, fitness, coverage) = again, second
+        timing["retry"] = time.perf_counter() - t3
     if max(fitness, coverage) < LOW_OVERLAP:
         warnings.warn(f"after alignment only {fitness:.0%} of the source lies on the target and {coverage:.0%} "
                       f"of the target on the source (within {1.5 * voxel * 1000:.1f} mm): the inputs may not "
                       "overlap, or may not be the same object", RegistrationWarning, stacklevel=2)
-    return Registration(best.T_target_source, fitness, best.rmse_m, best_h.n_inliers, len(hyps),
-                        {"load": t1 - t0, "global": t2 - t1, "icp": t3 - t2}, coverage)
+    return Registration(best.T_target_source, fitness, best.rmse_m, best_h.n_inliers, len(hyps), timing, coverage)
+
 
 
 def _surface(g: Geometry) -> tuple[np.ndarray, np.ndarray | None]:

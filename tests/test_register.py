@@ -4,7 +4,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from pcdet.io.models import load_geometry
-from pcdet.register import register
+from pcdet.register import RegisterConfig, register
 
 from .conftest import shared
 
@@ -38,8 +38,6 @@ def test_bunny_within_5mm(scan):
 @pytest.mark.real
 @pytest.mark.parametrize("grouping", ["gc", "hough"])
 def test_bunny_other_groupings_within_5mm(grouping):
-    from pcdet.register import RegisterConfig
-
     d = shared("bunny")
     T_scan_model = np.linalg.inv(_conf(d)["bun045.ply"])
     r = register(d / "bun_zipper_res3.ply", d / "bun045.ply", RegisterConfig(grouping=grouping))
@@ -53,9 +51,10 @@ def test_bunny_other_groupings_within_5mm(grouping):
 @pytest.mark.parametrize("a, b", [(0, 24), (144, 168), (0, 48), (240, 288)])
 def test_dragon_scan_to_scan_within_2mm(a, b):
     """Two partial range scans of the Stanford dragon 24 or 48 degrees apart, no initial guess: the source scan's
-    points land within 2 mm RMS of where dragonStandRight.conf puts them (measured 0.4-0.8 mm). At 240 -> 288 a
-    pose slid along the scan held as many points within ICP's 3 voxels as the right one (25 mm off when the short
-    ICPs were ranked by that): the hypotheses are ranked by the share within 1.5 voxel."""
+    points land within 2 mm RMS of where dragonStandRight.conf puts them (measured 0.3-0.8 mm), and the result is
+    not reported as doubtful. At 240 -> 288 a pose slid along the scan held as many points within ICP's 3 voxels
+    as the right one (25 mm off when the short ICPs were ranked by that): they are ranked by the share within 1.5
+    voxel."""
     d = shared("stanford_scans")
     conf = _conf(d, "dragonStandRight.conf")
     src, tgt = d / f"dragonStandRight_{a}.ply", d / f"dragonStandRight_{b}.ply"
@@ -66,4 +65,25 @@ def test_dragon_scan_to_scan_within_2mm(a, b):
     X = read_cloud(src).points
     err = X @ (r.T_target_source[:3, :3] - T_true[:3, :3]).T + (r.T_target_source[:3, 3] - T_true[:3, 3])
     assert np.sqrt(np.mean(np.sum(err ** 2, axis=1))) < 0.002
-    assert r.fitness > 0.5 and r.coverage > 0.45  # 48 degrees apart, about half of a scan is on the other (0.48)
+    # 48 degrees apart, about half of one scan lies on the other (240 -> 288: 0.55 and 0.48)
+    assert max(r.fitness, r.coverage) > 0.5 and min(r.fitness, r.coverage) > 0.4
+
+
+@pytest.mark.real
+def test_a_doubtful_scan_alignment_is_tried_again_with_three_candidates():
+    """Dragon scans 24 and 72 degrees, at the voxel bench_register.py uses (1/40 of the source's diameter): one FPFH
+    candidate per keypoint gives no hypothesis near the truth, and the result (40 mm off) has both shares under one
+    half. Such a doubtful alignment is tried again with three candidates, whose result (1.1 mm off, fitness 0.34,
+    coverage 0.65) is kept for its larger fitness. Checked: within 2 mm RMS, and the retry is in the timings."""
+    from pcdet.cloud import diameter
+    from pcdet.io.clouds import read_cloud
+
+    d = shared("stanford_scans")
+    conf = _conf(d, "dragonStandRight.conf")
+    src, tgt = d / "dragonStandRight_24.ply", d / "dragonStandRight_72.ply"
+    T_true = np.linalg.inv(conf[tgt.name]) @ conf[src.name]
+    X = read_cloud(src).points
+    r = register(X, read_cloud(tgt).points, RegisterConfig(voxel=diameter(X) / 40.0), units="m")
+    err = X @ (r.T_target_source[:3, :3] - T_true[:3, :3]).T + (r.T_target_source[:3, 3] - T_true[:3, 3])
+    assert np.sqrt(np.mean(np.sum(err ** 2, axis=1))) < 0.002
+    assert "retry" in r.timing_s and max(r.fitness, r.coverage) > 0.5
