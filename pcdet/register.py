@@ -140,8 +140,8 @@ def register(source, target, config: RegisterConfig | None = None, *, units="aut
                               model_tree=prepared.descriptor_tree)  # the target looks up the source
         return grouper.group(scene, prepared, cand, np.random.default_rng(cfg.seed))
 
-    def on_target(T: np.ndarray) -> float:  # share of the source samples within 1.5 voxel of the target
-        return float(np.isfinite(tree.query(transform(T, sp), distance_upper_bound=1.5 * voxel)[0]).mean())
+    def on_target(moved: np.ndarray) -> float:  # share of the moved source samples within 1.5 voxel of the target
+        return float(np.isfinite(tree.query(moved, distance_upper_bound=1.5 * voxel)[0]).mean())
 
     def refined(hyps: list[Hypothesis]) -> tuple[RegistrationResult, Hypothesis, float, float]:
         """The best hypothesis refined, the hypothesis, and its fitness and coverage (both at 1.5 voxel)."""
@@ -152,7 +152,7 @@ def register(source, target, config: RegisterConfig | None = None, *, units="aut
         short = dataclasses.replace(rc, iterations=min(SHORT_ICP, rc.iterations))
         for h in hyps:  # each hypothesis's T_scene_model is a T_target_source
             r = icp(sp, tp, tn, h.T_scene_model, short, target_tree=tree, tolerance=tol)
-            key = (on_target(r.T_target_source), -r.rmse_m)
+            key = (on_target(transform(r.T_target_source, sp)), -r.rmse_m)
             if best_key is None or key > best_key:
                 best, best_h, best_key = r, h, key
         if not best.converged and rc.iterations > SHORT_ICP:
@@ -166,7 +166,7 @@ def register(source, target, config: RegisterConfig | None = None, *, units="aut
         # both shares at 1.5 voxel, as documented (the last ICP round's own fitness counts only half a voxel)
         moved = transform(best.T_target_source, sp)
         coverage = float(np.isfinite(cKDTree(moved).query(tp, distance_upper_bound=1.5 * voxel)[0]).mean())
-        return best, best_h, on_target(best.T_target_source), coverage
+        return best, best_h, on_target(moved), coverage
 
     hyps = hypotheses(pc.matching.k)
     more = cfg.k is None and pc.matching.k < 3  # one candidate each may be too few: three then
