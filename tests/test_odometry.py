@@ -147,3 +147,37 @@ def test_depth_noise_weights_on_real_kinect_frames():
     gt = [np.linalg.inv(truth[refs[0]]) @ truth[r] for r in refs]
     frames = [rec.frame(r) for r in refs]
     assert ate_rmse(list(odometry(frames, OdometryConfig())), gt) < 0.015
+
+
+@pytest.mark.parametrize("stride", [1, 3, 4])
+def test_odometry_points_are_the_strided_valid_pixels_in_range(stride):
+    """Odometry back-projects only every ``pixel_stride``-th row and column: the points are exactly those of the
+    whole frame's valid pixels on that grid with depth in [min_range, max_range], in the same order. Checked on a
+    real 7-Scenes frame with invalid (0) pixels, and NaN, 0 and out-of-range depths written into it."""
+    import dataclasses
+
+    from pcdet.odometry import _points
+
+    from .conftest import shared
+
+    rec = open_recording(shared("sevenscenes"))
+    frame = rec.frame(next(iter(rec)))
+    depth = frame.depth.copy()
+    depth[10:20, 8:40] = np.nan
+    depth[100:104, :] = 0.0
+    depth[200:210, 300:340] = 9.0  # beyond max_range
+    depth[300, 4] = 0.05  # nearer than min_range
+    frame = dataclasses.replace(frame, depth=depth)
+    cfg = OdometryConfig(pixel_stride=stride)
+    pts, pix = frame.points()
+    v, u = np.divmod(pix, frame.camera.width)
+    keep = (pts[:, 2] >= cfg.min_range) & (pts[:, 2] <= cfg.max_range) & (v % stride == 0) & (u % stride == 0)
+    assert np.array_equal(_points(frame, cfg), pts[keep])
+    assert keep.sum() > 1000
+
+
+def test_odometry_refuses_a_pixel_stride_under_one():
+    from pcdet.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="pixel_stride"):
+        OdometryConfig(pixel_stride=0)
