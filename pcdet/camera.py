@@ -126,25 +126,30 @@ class Camera:
         except InputError as e:
             raise InputError(e.problem, path) from None
 
-    def backproject(self, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def backproject(self, depth: np.ndarray, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """Back-project a depth image.
 
         Parameters
         ----------
         depth : (H, W) float, metres, 0 or non-finite where invalid.
+        stride : only every ``stride``-th pixel row and column (from the first) is back-projected.
 
         Returns
         -------
         points : (N, 3) float64 camera-frame points (m) of the valid pixels, row-major order.
-        pixels : (N,) int64 flat pixel indices ``v * W + u`` of those points.
+        pixels : (N,) int64 flat pixel indices ``v * W + u`` (of the whole image) of those points.
         """
         depth = np.asarray(depth)
         if depth.shape != (self.height, self.width):
             raise InputError(f"depth image is {depth.shape[1]}x{depth.shape[0]} but the camera is "
                              f"{self.width}x{self.height}")
-        flat = depth.reshape(-1)
-        pixels = np.flatnonzero(np.isfinite(flat) & (flat > 0))
-        return self.backproject_pixels(pixels, flat[pixels]), pixels
+        if stride < 1:
+            raise ValueError(f"stride must be >= 1, got {stride}")
+        sub = depth[::stride, ::stride]
+        flat = sub.reshape(-1)
+        at = np.flatnonzero(np.isfinite(flat) & (flat > 0))
+        pixels = at if stride == 1 else (at // sub.shape[1]) * stride * self.width + (at % sub.shape[1]) * stride
+        return self.backproject_pixels(pixels, flat[at]), pixels
 
     def backproject_pixels(self, pixels: np.ndarray, z: np.ndarray) -> np.ndarray:
         """(N,) flat pixel indices ``v * W + u`` with depths ``z`` (N,) m -> (N, 3) float64 camera-frame points."""

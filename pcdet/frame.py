@@ -57,9 +57,10 @@ class Frame:
         """(H, W) of the depth image."""
         return self.depth.shape
 
-    def points(self) -> tuple[np.ndarray, np.ndarray]:
-        """(N, 3) float64 camera-frame points (m) of valid pixels and their (N,) flat pixel indices."""
-        return self.camera.backproject(self.depth)
+    def points(self, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 3) float64 camera-frame points (m) of valid pixels and their (N,) flat pixel indices; with
+        ``stride``, of every ``stride``-th pixel row and column only (``Camera.backproject``)."""
+        return self.camera.backproject(self.depth, stride)
 
     @classmethod
     def from_depth_png(cls, depth_path, camera: Camera | str | Path, rgb_path=None, info: dict | None = None,

@@ -199,12 +199,8 @@ def _points(frame: Frame, cfg: OdometryConfig) -> np.ndarray:
     """(N, 3) camera-frame points (m) of the valid pixels on every ``pixel_stride``-th row and column whose depth
     lies in [min_range, max_range], in row-major order. Only those pixels are back-projected: a 640 x 480 frame at
     stride 4 has a sixteenth of its pixels to convert."""
-    s = cfg.pixel_stride
-    sub = frame.depth[::s, ::s]
-    z = sub.reshape(-1).astype(np.float64)
-    at = np.flatnonzero(np.isfinite(z) & (z > 0) & (z >= cfg.min_range) & (z <= cfg.max_range))
-    v, u = np.divmod(at, sub.shape[1])
-    return frame.camera.backproject_pixels(v * s * frame.camera.width + u * s, z[at])
+    pts, _ = frame.points(cfg.pixel_stride)
+    return pts[(pts[:, 2] >= cfg.min_range) & (pts[:, 2] <= cfg.max_range)]
 
 
 def odometry(frames: Iterable[Frame], cfg: OdometryConfig | None = None) -> Iterator[np.ndarray]:

@@ -66,6 +66,23 @@ def test_backproject_project_roundtrip(rng):
     np.testing.assert_allclose(pts[:, 2], depth.reshape(-1)[pix], rtol=1e-6)
 
 
+@pytest.mark.parametrize("stride", [2, 3, 4])
+def test_backproject_with_a_stride_gives_the_full_result_on_that_grid(rng, stride):
+    """With ``stride`` only every stride-th row and column is back-projected: exactly the points and (whole-image)
+    pixel indices of the full back-projection on that grid, in the same order; a stride under 1 is refused."""
+    cam = Camera(500.0, 505.0, 319.5, 239.5, 640, 479)  # an odd height: the last row is on the grid of 2
+    depth = rng.uniform(0.5, 2.0, (479, 640)).astype(np.float32)
+    depth[::7, ::5] = 0
+    depth[3:9, 10:30] = np.nan
+    pts, pix = cam.backproject(depth)
+    v, u = np.divmod(pix, 640)
+    on = (v % stride == 0) & (u % stride == 0)
+    sp, spix = cam.backproject(depth, stride)
+    assert np.array_equal(spix, pix[on]) and np.array_equal(sp, pts[on])
+    with pytest.raises(ValueError, match="stride"):
+        cam.backproject(depth, 0)
+
+
 @pytest.mark.parametrize("scale", [1.0, 0.1, 0.2])
 def test_depth_scale_round_trips_in_one_unit(tmp_path, scale):
     """depth_scale is mm per raw unit in memory and in files: to_dict/from_dict and a JSON file give the same
