@@ -135,7 +135,7 @@ def main() -> None:
     for name, ei, ti in (("pcdet register", 1, 2), ("Open3D FPFH + RANSAC + ICP", 3, 4)):
         ok = sum(r[ei] < SUCCESS_M for r in rows)
         tm = np.median([r[ti] for r in rows])
-        print(f"| {name} | {ok}/{len(rows)} | {tm:.2f} | {tm / tp:.2f}x |")
+        print(f"| {name} | {ok}/{len(rows)} | {tm:.3f} | {tm / tp:.2f}x |")
 
 
 if __name__ == "__main__":
