@@ -53,12 +53,14 @@ class RegisterConfig:
     a doubtful one, with fitness and coverage both under ``LOW_OVERLAP``; 3 for the other groupers). On the 33
     pairs of ``python scripts/bench_register.py``, RANSAC registered 30 within 2 mm at k = 1 as at k = 3 (and
     faster: 0.13 s a pair instead of 0.20 when this was chosen); geometric consistency drops to 27. With the retry
-    of doubtful results, 32."""
+    of doubtful results, 32.
+    iterations: RANSAC draws (guided by second-order consistency). 300, 500, 700 and 1000 draws all register 31-32
+    of those 33 pairs for seeds 0-3; 500 is 9 % faster than 1000 in all."""
 
     voxel: float | None = None
     grouping: str = "ransac"
     k: int | None = None
-    iterations: int = 1000
+    iterations: int = 500
     alternatives: int = 5
     icp_iterations: int = 50
     seed: int = 0
