@@ -442,3 +442,63 @@ def test_seed_edges_of_a_cluster_are_its_edges_in_ascending_order(rng):
         scan = np.flatnonzero((clabel[g.src] == lab) & (g.src < g.nbr))
         assert np.array_equal(seeds[lab], scan)
         assert (clabel[nbr[scan]] == lab).all()  # compatible correspondences share a cluster
+
+
+@pytest.mark.parametrize("missing", [0.1, 0.7])  # the dense (most candidates valid) and the sparse path
+def test_compatibility_graph_is_the_pair_test_applied_to_every_candidate_pair(rng, missing):
+    """The CSR graph holds exactly the correspondence pairs whose scene pair (in reach, in one cluster) and model
+    pair have the same point-pair feature: lengths within the tolerance, the three angles within theirs, two
+    different model keypoints, both candidates present. Checked against a loop over every pair, both directions,
+    each row's neighbours ascending."""
+    from pcdet.grouping.common import compatibility_graph
+    from pcdet.pairs import scene_pairs
+
+    S, k, K, diameter, tol, deg_tol = 90, 3, 30, 0.1, 0.01, 40.0
+    pts = rng.uniform(0, 0.1, (S, 3))
+    nrm = rng.normal(size=(S, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    labels = (pts[:, 0] > 0.06).astype(int)
+    cand = rng.integers(0, K, (S, k))
+    cand[rng.random((S, k)) < missing] = -1
+    cand[0, :2] = cand[1, :2] = 5  # one model keypoint at both ends of a pair: never compatible
+    mp = rng.uniform(0, 0.1, (K, 3)).astype(np.float32)
+    mn = nrm[:K].astype(np.float32)
+    pairs = scene_pairs(pts, nrm, labels, diameter)
+    start, deg, nbr = compatibility_graph(pairs, cand, mp, mn, diameter=diameter, edge_tolerance=tol,
+                                          normal_tolerance_deg=deg_tol)
+    want = [set() for _ in range(S * k)]
+    for a, b, fs in zip(pairs.a, pairs.b, pairs.features):
+        if not 0.1 * diameter < fs[0] < diameter + tol:
+            continue
+        for r1 in range(k):
+            for r2 in range(k):
+                ma, mb = cand[a, r1], cand[b, r2]
+                if ma < 0 or mb < 0 or ma == mb:
+                    continue
+                fm = pair_features(mp[ma], mn[ma], mp[mb], mn[mb])
+                if (abs(np.linalg.norm(mp[mb] - mp[ma]) - fs[0]) < tol
+                        and (np.abs(fs[1:] - fm[1:]) < np.radians(deg_tol)).all()):
+                    want[a * k + r1].add(b * k + r2)
+                    want[b * k + r2].add(a * k + r1)
+    assert sum(map(len, want)) > 50
+    assert np.array_equal(deg, [len(w) for w in want])
+    assert np.array_equal(start, np.r_[0, np.cumsum(deg)[:-1]])
+    for c in range(S * k):
+        assert list(nbr[start[c]:start[c] + deg[c]]) == sorted(want[c])
+
+
+def test_second_order_counts_are_the_common_neighbours_of_each_edge(rng):
+    """Guided RANSAC weighs each edge by the correspondences compatible with both its ends: for every edge of a
+    random symmetric graph, the size of the intersection of its ends' neighbour sets, aligned with ``nbr``."""
+    from pcdet.grouping.ransac import _Graph, _second_order
+
+    M = 60
+    upper = np.triu(rng.random((M, M)) < 0.2, 1)
+    adj = upper | upper.T
+    deg = adj.sum(axis=1)
+    nbr = np.concatenate([np.flatnonzero(row) for row in adj])
+    start = np.r_[0, np.cumsum(deg)[:-1]]
+    src = _Graph(np.zeros((M, 3)), np.zeros((M, 3)), np.zeros((M, 3)), 1, start, deg, nbr).src
+    common, keys = _second_order(src, deg, nbr)
+    assert np.array_equal(common, [np.count_nonzero(adj[i] & adj[j]) for i, j in zip(src, nbr)])
+    assert np.array_equal(keys, src * M + nbr) and (np.diff(keys) > 0).all()

@@ -7,6 +7,7 @@ Correspondences come as a table: scene keypoint ``s`` has up to k candidate mode
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sparse
 
 from ..align import kabsch_shared
 from ..pairs import ScenePairs, pair_features
@@ -36,9 +37,14 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
     lo2 = np.maximum(fs[:, 0] - edge_tolerance, 0) ** 2  # squared bounds: no square root per candidate pair
     hi2 = (fs[:, 0] + edge_tolerance) ** 2
     def angles_agree(pair, ma, mb):  # (n,) bool: the three angles of scene and model pairs agree
-        fm = pair_features(mp[ma], mn[ma], mp[mb], mn[mb])
-        d = np.abs(fs[pair, 1:] - fm[:, 1:])
-        return (d[:, 0] < tol) & (d[:, 1] < tol) & (d[:, 2] < tol)
+        # the normals' angle first: it needs no pair vector and refuses more than half; the other two after
+        n1, n2 = mn[ma], mn[mb]
+        ok = np.abs(fs[pair, 3] - np.arccos(np.clip(np.einsum("...i,...i->...", n1, n2), -1, 1))) < tol
+        i = np.flatnonzero(ok)
+        fm = pair_features(mp[ma[i]], n1[i], mp[mb[i]], n2[i])
+        d = np.abs(fs[pair[i], 1:3] - fm[:, 1:3])
+        ok[i] = (d[:, 0] < tol) & (d[:, 1] < tol)
+        return ok
 
     def test(part):  # (pair index, correspondence id at a, at b) listed one by one (sparse candidates)
         pair, ia, ib = part
@@ -50,27 +56,26 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
         keep = sel[angles_agree(pair[sel], ma[sel], mb[sel])]
         return ia[keep], ib[keep]
 
-    mx, my, mz = (np.ascontiguousarray(mp[:, i]) for i in range(3))
+    # one coordinate array per axis with a NaN at the end, which a missing candidate (-1) reads: its length is
+    # NaN and fails the length test, as does the same model keypoint at both ends (length 0, and lo2 >= 0)
+    mx, my, mz = (np.append(mp[:, i], np.float32(np.nan)) for i in range(3))
 
     def test_rows(rows):  # every candidate of a against every candidate of b, for a block of scene pairs
         ca, cb = cand[a[rows]], cand[b[rows]]  # (n, k)
         # coordinates gathered once per block, one array per axis: the length test runs on (n, k) arrays
         ax, ay, az, bx, by, bz = mx[ca], my[ca], mz[ca], mx[cb], my[cb], mz[cb]
-        lo, hi, vb = lo2[rows, None], hi2[rows, None], cb >= 0
+        lo, hi = lo2[rows, None], hi2[rows, None]
         out_a, out_b = [], []
         for r1 in range(k):
-            ma = ca[:, r1]
             d = bx - ax[:, r1, None]
             l2 = d * d
             d = by - ay[:, r1, None]
             l2 += d * d
             d = bz - az[:, r1, None]
             l2 += d * d
-            ok = (l2 > lo) & (l2 < hi) & (cb != ma[:, None]) & vb
-            ok &= (ma >= 0)[:, None]
-            sel = np.flatnonzero(ok)
+            sel = np.flatnonzero((l2 > lo) & (l2 < hi))
             p, r2 = sel // k, sel % k
-            good = angles_agree(rows[p], ma[p], cb[p, r2])
+            good = angles_agree(rows[p], ca[p, r1], cb[p, r2])
             p, r2 = p[good], r2[good]
             out_a.append(a[rows[p]] * k + r1)
             out_b.append(b[rows[p]] * k + r2)
@@ -89,17 +94,13 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
             found = list(pool.map(fn, parts))
     else:
         found = [fn(p) for p in parts]
-    ca_parts = [x for x, _ in found]
-    cb_parts = [y for _, y in found]
-    ca = np.concatenate(ca_parts) if ca_parts else np.zeros(0, np.int64)
-    cb = np.concatenate(cb_parts) if cb_parts else np.zeros(0, np.int64)
-    src = np.concatenate([ca, cb])
-    dst = np.concatenate([cb, ca])
-    order = np.lexsort((dst, src))
-    src, dst = src[order], dst[order]
-    deg = np.bincount(src, minlength=M)
-    start = np.concatenate([[0], np.cumsum(deg)[:-1]]).astype(np.int64)
-    return start, deg, dst.astype(np.int64)
+    ca = np.concatenate([x for x, _ in found] or [np.zeros(0, np.int64)])
+    cb = np.concatenate([y for _, y in found] or [np.zeros(0, np.int64)])
+    # both directions, by first end and then second (each pair is found once, so the order is unique): scipy's
+    # CSR build is a counting sort by row and then sorts each row's columns, linear where a lexsort was not
+    A = sparse.csr_matrix((np.ones(2 * len(ca), np.float32), (np.r_[ca, cb], np.r_[cb, ca])), shape=(M, M))
+    A.sort_indices()
+    return A.indptr[:-1].astype(np.int64), np.diff(A.indptr).astype(np.int64), A.indices.astype(np.int64)
 
 
 def _candidate_pairs(a: np.ndarray, b: np.ndarray, cand: np.ndarray, chunk: int = 1 << 22):
