@@ -453,17 +453,25 @@ def test_compatibility_graph_is_the_pair_test_applied_to_every_candidate_pair(rn
     from pcdet.grouping.common import compatibility_graph
     from pcdet.pairs import scene_pairs
 
-    S, k, K, diameter, tol, deg_tol = 90, 3, 30, 0.1, 0.01, 40.0
+    S, k, K, diameter, tol, deg_tol = 90, 3, 30, 0.1, 0.02, 40.0
     pts = rng.uniform(0, 0.1, (S, 3))
     nrm = rng.normal(size=(S, 3))
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    # keypoints 0 and 1 are 15 mm apart (less than the length tolerance), with normals across their pair: the
+    # pair (model keypoint 5, model keypoint 5) has their feature within every tolerance, and only being one
+    # model keypoint at both ends refuses it
+    pts[0], pts[1] = [0.02, 0.05, 0.05], [0.035, 0.05, 0.05]
+    nrm[0] = nrm[1] = [0.0, 0.0, 1.0]
     labels = (pts[:, 0] > 0.06).astype(int)
     cand = rng.integers(0, K, (S, k))
     cand[rng.random((S, k)) < missing] = -1
-    cand[0, :2] = cand[1, :2] = 5  # one model keypoint at both ends of a pair: never compatible
+    cand[0, 0] = cand[1, 0] = 5
     mp = rng.uniform(0, 0.1, (K, 3)).astype(np.float32)
     mn = nrm[:K].astype(np.float32)
     pairs = scene_pairs(pts, nrm, labels, diameter)
+    (p01,) = np.flatnonzero((pairs.a == 0) & (pairs.b == 1))
+    f01, f55 = pairs.features[p01], pair_features(mp[5], mn[5], mp[5], mn[5])
+    assert abs(f01[0] - f55[0]) < tol and (np.abs(f01[1:] - f55[1:]) < np.radians(deg_tol)).all()
     start, deg, nbr = compatibility_graph(pairs, cand, mp, mn, diameter=diameter, edge_tolerance=tol,
                                           normal_tolerance_deg=deg_tol)
     want = [set() for _ in range(S * k)]
@@ -481,6 +489,7 @@ def test_compatibility_graph_is_the_pair_test_applied_to_every_candidate_pair(rn
                     want[a * k + r1].add(b * k + r2)
                     want[b * k + r2].add(a * k + r1)
     assert sum(map(len, want)) > 50
+    assert 1 * k not in nbr[start[0]:start[0] + deg[0]]  # (0, r 0) and (1, r 0): model keypoint 5 at both ends
     assert np.array_equal(deg, [len(w) for w in want])
     assert np.array_equal(start, np.r_[0, np.cumsum(deg)[:-1]])
     for c in range(S * k):
