@@ -16,11 +16,13 @@ found by deterministic local search: start empty, apply the best single switch (
 while it raises f. Clutter that another selected candidate explains costs nothing, so neighbouring true
 objects do not penalise each other.
 
-What an object stands on is not its clutter: with a supporting plane given, an unexplained point that faces up
-like the plane (normal within ``SUPPORT_DEG``) and lies no higher above it than the placed model's lowest sample
-(plus ``explain_radius``) is left out of h's clutter. On real tables objects stand on books, magazines and
-boards a centimetre or two above the plane that preprocessing removed, and that surface runs on under the
-object's base; counted as clutter it sinks true detections.
+What an object stands on is neither its clutter nor explained by it: with a supporting plane given, a scene point
+that faces up like the plane (normal within ``SUPPORT_DEG``) and lies no higher above it than the placed model's
+lowest sample (plus ``explain_radius``) is left out of h's explained points and of its clutter. On real tables
+objects stand on books, magazines and boards a centimetre or two above the plane that preprocessing removed, and
+that surface runs on under the object's base: counted as clutter it sinks true detections, and counted as
+explained it lets a flat model laid into the board (a bracket fitted to a printed marker board) explain nothing
+but its support and still be chosen.
 """
 from __future__ import annotations
 
@@ -51,8 +53,8 @@ def candidate_terms(scene_points: np.ndarray, scene_tree: cKDTree, model_points:
                     plane: "Plane | None" = None, scene_normals: np.ndarray | None = None) -> GlobalTerms:
     """scene_points : (N, 3) m; model_points : per candidate (M_h, 3) surface samples already at the pose (m);
     violation_ratio : (H,) violating / supported pixels of each candidate; plane : the supporting ``Plane``
-    (unit normal toward the camera) or None, with ``scene_normals`` (N, 3): what a candidate stands on is not
-    its clutter (module docstring)."""
+    (unit normal toward the camera) or None, with ``scene_normals`` (N, 3): what a candidate stands on is neither
+    its clutter nor explained by it (module docstring)."""
     height = level = None
     if plane is not None and scene_normals is not None:
         height = scene_points @ plane.normal + plane.offset
@@ -73,6 +75,7 @@ def candidate_terms(scene_points: np.ndarray, scene_tree: cKDTree, model_points:
         if height is not None:
             base = float((P @ plane.normal).min()) + plane.offset + explain_radius
             rest = rest[~(level[rest] & (height[rest] <= base))]
+            e = e[~(level[e] & (height[e] <= base))]
         explained.append(e)
         clutter.append(rest)
     viol = np.array([len(e) for e in explained], float) * np.asarray(violation_ratio, float)
