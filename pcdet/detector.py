@@ -89,7 +89,9 @@ class Trace:
     scene's keypoints, before ``grouping.max_keypoints``); every raw hypothesis
     and the quick first-look verification of each; which got the coarse ICP and which were refined (indices
     into ``hypotheses``), their ICP results and verifications; the indices into ``refined`` that passed the
-    per-pose checks, in score order, and those finally kept."""
+    per-pose checks, in score order, and those finally kept. With global selection, ``selection`` holds its
+    inputs: ``(terms, conflicts)`` for the accepted poses in ``accepted``'s order (``global_verify.select``
+    on them with the config's weights gives ``kept``)."""
 
     scene: Scene | None = None
     candidates: dict = field(default_factory=dict)
@@ -102,6 +104,7 @@ class Trace:
     verifications: list = field(default_factory=list)
     accepted: list = field(default_factory=list)
     kept: list = field(default_factory=list)
+    selection: tuple | None = None
 
 
 @dataclass
@@ -340,9 +343,9 @@ class Detector:
                                                     [pm.colours for pm in models])
         return self._indexes[key]
 
-    def _select_global(self, scene: Scene, order, hyps, regs, vers) -> list[int]:
+    def _select_global(self, scene: Scene, order, hyps, regs, vers, trace: Trace | None = None) -> list[int]:
         """The subset of ``order`` (indices of accepted hypotheses) that best explains the scene
-        (``global_verify``), best verification score first."""
+        (``global_verify``), best verification score first; its inputs go to ``trace.selection``."""
         v = self.config.verify
         pts = [transform(regs[j].T_target_source, self.library[hyps[j].model_index].points) for j in order]
         ratio = np.array([vers[j].n_violations / max(vers[j].n_supported, 1) for j in order])
@@ -351,6 +354,8 @@ class Detector:
         # two sizes of one shape on one spot are one object, as two poses of one model are
         family = [self._family[hyps[j].model_index].representative for j in order]
         conflicts = same_object_conflicts(terms, family, v.conflict_overlap)
+        if trace is not None:
+            trace.selection = (terms, conflicts)
         chosen, _ = select(terms, v.duplicate_weight, v.clutter_weight, v.violation_weight, conflicts=conflicts)
         return [order[i] for i in sorted(chosen)]
 
@@ -486,7 +491,7 @@ class Detector:
                 order = [j for j in order if vers[j].n_supported > 0]
             order = self._one_size_per_spot(frame, order, hyps, regs, vers)
             if targets is None and cfg.verify.selection == "global":
-                kept = self._select_global(scene, order, hyps, regs, vers)
+                kept = self._select_global(scene, order, hyps, regs, vers, trace)
             else:
                 kept = resolve_conflicts(order, [v.support for v in vers], cfg.verify.conflict_overlap,
                                          frame.depth.size)

@@ -97,6 +97,28 @@ def test_same_result_twice(synth_small, library):
         assert x.score == y.score
 
 
+def test_trace_keeps_the_inputs_of_global_selection(synth_small, library):
+    """``Trace.selection`` holds what global selection chose from: ``select`` on it with the pipeline's weights
+    gives the poses kept (as indices into ``accepted``), so weights can be screened without detecting again
+    (scripts/selection_weights.py); with threshold selection it stays empty."""
+    from pcdet.detector import Trace
+    from pcdet.global_verify import select
+
+    ds = BopDataset(synth_small)
+    f = ds.frame(ds.images[0])
+    cfg = PipelineConfig(seed=4)
+    tr = Trace()
+    res = Detector(library, cfg).detect(f, trace=tr)
+    terms, conflicts = tr.selection
+    assert len(terms.explained) == len(tr.accepted) == conflicts.shape[0] > len(res.detections) > 0
+    v = cfg.verify
+    chosen, _ = select(terms, v.duplicate_weight, v.clutter_weight, v.violation_weight, conflicts=conflicts)
+    assert sorted(tr.accepted[i] for i in chosen) == sorted(tr.kept)
+    tr = Trace()
+    Detector(library, cfg.replace(verify={"selection": "threshold"})).detect(f, trace=tr)
+    assert tr.selection is None and len(tr.kept) > 0
+
+
 def test_empty_scene_gives_no_detection(library):
     from pcdet.synth import KINECT
 
