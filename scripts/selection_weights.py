@@ -29,6 +29,7 @@ from bench_library import build_libraries
 from pcdet.config import load_pipeline
 from pcdet.datasets import open_recording
 from pcdet.detector import Detector, Trace
+from pcdet.errors import InputError
 from pcdet.global_verify import select
 from pcdet.library import ModelLibrary
 from pcdet.metrics import add, adds
@@ -89,6 +90,9 @@ def main():
     settings = [tuple(float(x) for x in s.split(",")) for s in args.weights.split(";") if s.strip()]
     if any(len(s) != 2 for s in settings):
         raise SystemExit(f"error: --weights {args.weights!r}: each setting is 'clutter,see-through'")
+    libraries = [n.strip() for n in args.cat.split(",") if n.strip()]
+    if any(n not in ("8", "40") for n in libraries):
+        raise SystemExit(f"error: --cat {args.cat!r}: the libraries are 8 and 40")
     cached: list[tuple[str, float, list[dict]]] = []
     for spec in args.suite:
         folder, _, pipeline = spec.partition(":")
@@ -97,15 +101,15 @@ def main():
         det = Detector(ModelLibrary.from_folder(Path(folder) / "models", cfg), cfg)
         cached.append((f"{Path(folder).name} ({pipeline or 'default'})", cfg.verify.duplicate_weight,
                        collect(det, open_recording(Path(folder)), args.frames)))
-    if args.cat:
+    if libraries:
         tmp = Path(tempfile.mkdtemp(prefix="pcdet-weights-"))
         try:
             lib8, lib40 = build_libraries(args.cat_data, tmp)
             cfg = load_pipeline("default")
-            for n in args.cat.split(","):
+            for n in libraries:
                 print(f"real cat frames, {n} models", file=sys.stderr)
-                det = Detector(ModelLibrary.from_folder(lib8 if n.strip() == "8" else lib40, cfg), cfg)
-                cached.append((f"real cat, {n.strip()} models", cfg.verify.duplicate_weight,
+                det = Detector(ModelLibrary.from_folder(lib8 if n == "8" else lib40, cfg), cfg)
+                cached.append((f"real cat, {n} models", cfg.verify.duplicate_weight,
                                collect(det, open_recording(args.cat_data), args.frames, only=CAT, metric=add)))
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -120,4 +124,7 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except (InputError, FileNotFoundError) as e:  # a missing folder, an unreadable frame or pipeline file
+        raise SystemExit(f"error: {e}") from None
