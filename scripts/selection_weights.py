@@ -5,10 +5,10 @@ Each frame is detected once with the pipeline as it is (no targets); the inputs 
 ``global_verify.select`` is run on them for every weight setting. Only the weights change, so the accepted poses
 are the same in every row, and the pipeline's own weights give the detector's own detections.
 
-A selected pose is correct when it lies within 0.1 d of a ground-truth instance of its object (ADD-S on BOP
-datasets; ADD on the real cat frames, where only the cat counts and the cat's obj_id is 6). Recall: instances with
-a correct selected pose; precision: correct selected poses / all selected. With the pipeline's own weights these
-are the figures of ``bench_thirdparty.py``, ``bench_crowded.py`` and ``bench_library.py`` on the same data.
+Each setting's selected poses are scored by ``pcdet.evaluate`` (BOP matching, one estimate per instance, as
+``bench_thirdparty.py`` and ``bench_crowded.py`` score them): recall at ADD-S < 0.1 d and precision, the share of
+selected poses matched. On the real cat frames recall and precision are taken at ADD < 0.1 d (the cat is not
+symmetric; ``bench_library.py`` counts the same way), and every pose of another model is a false positive.
 
 Datasets: ``--suite DIR[:PIPELINE]`` (a BOP dataset with its ``models/``; repeatable) and ``--cat 8,40`` (the
 real LINEMOD cat frames with the 8- and 40-model libraries of ``bench_library.py``).
@@ -27,54 +27,42 @@ from pathlib import Path
 from bench_library import build_libraries
 
 from pcdet.config import load_pipeline
-from pcdet.datasets import open_recording
+from pcdet.datasets.bop import BopDataset
 from pcdet.detector import Detector, Trace
 from pcdet.errors import InputError
+from pcdet.evaluate import evaluate
 from pcdet.global_verify import select
 from pcdet.library import ModelLibrary
-from pcdet.metrics import add, adds
 
-CAT = 6
-
-
-def collect(det: Detector, rec, frames: int, *, only: int | None = None, metric=adds) -> list[dict]:
-    """Per frame: the selection inputs, which ground-truth instance each accepted pose is correct for (-1:
-    none) and the number of instances. ``only``: count only that object's instances."""
-    refs = list(rec)
-    refs = refs[:frames] if frames > 0 else refs
+def collect(det: Detector, ds: BopDataset) -> list[dict]:
+    """Per image of ``ds``: the selection inputs (``Trace.selection``) and the accepted poses, in their order, as
+    estimates (``evaluate``'s rows)."""
     out = []
-    for n, ref in enumerate(refs, 1):
-        gts = [g for g in rec.gt(ref) if only is None or g["obj_id"] == only]
+    for n, img in enumerate(ds, 1):
         tr = Trace()
-        det.detect(rec.frame(ref), None, trace=tr)
-        match = []
-        for j in tr.accepted:
-            m = det.library[tr.hypotheses[tr.refined[j]].model_index]
-            T = tr.registrations[j].T_target_source
-            errs = [(metric(T, g["T_cam_model"], m.points) / m.diameter, i) for i, g in enumerate(gts)
-                    if g["obj_id"] == m.obj_id]
-            best = min(errs, default=(1.0, -1))
-            match.append(best[1] if best[0] < 0.1 else -1)
+        det.detect(ds.frame(img), None, trace=tr)
         if tr.selection is None:
             raise SystemExit("error: the pipeline does not select globally (verify.selection = 'threshold')")
-        out.append({"selection": tr.selection, "match": match, "instances": len(gts)})
-        print(f"\r  {n}/{len(refs)} frames", end="", file=sys.stderr, flush=True)
+        poses = [{"scene_id": img.scene_id, "im_id": img.im_id, "score": tr.verifications[j].score,
+                  "obj_id": det.library[tr.hypotheses[tr.refined[j]].model_index].obj_id,
+                  "T_cam_model": tr.registrations[j].T_target_source} for j in tr.accepted]
+        out.append({"selection": tr.selection, "poses": poses})
+        print(f"\r  {n}/{len(ds)} frames", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
     return out
 
 
-def score(frames: list[dict], w_dup: float, w_clutter: float, w_viol: float) -> tuple[int, int, int, int]:
-    """(instances found, instances, correct selected, selected) with these weights."""
-    found = inst = good = chosen = 0
+def score(ds: BopDataset, library: ModelLibrary, frames: list[dict], metric: str, w_dup: float, w_clutter: float,
+          w_viol: float) -> tuple[float, float]:
+    """(recall, precision) at ``metric`` ('add' or 'adds') < 0.1 d of the poses selected with these weights."""
+    ests = []
     for f in frames:
         terms, conflicts = f["selection"]
-        sel, _ = select(terms, w_dup, w_clutter, w_viol, conflicts=conflicts)
-        m = [f["match"][i] for i in sel]
-        found += len({x for x in m if x >= 0})
-        inst += f["instances"]
-        good += sum(x >= 0 for x in m)
-        chosen += len(sel)
-    return found, inst, good, chosen
+        chosen, _ = select(terms, w_dup, w_clutter, w_viol, conflicts=conflicts)
+        ests += [f["poses"][i] for i in chosen]
+    ov = evaluate(ds, ests, library, with_vsd=False).overall
+    recall = ov[f"recall_{metric}"]
+    return recall, recall * ov["instances"] / ov["estimates"] if ov["estimates"] else 0.0
 
 
 def main():
@@ -93,35 +81,39 @@ def main():
     libraries = [n.strip() for n in args.cat.split(",") if n.strip()]
     if any(n not in ("8", "40") for n in libraries):
         raise SystemExit(f"error: --cat {args.cat!r}: the libraries are 8 and 40")
-    cached: list[tuple[str, float, list[dict]]] = []
+    cached = []  # (column, dataset, library, metric, duplicate weight, frames)
     for spec in args.suite:
         folder, _, pipeline = spec.partition(":")
         cfg = load_pipeline(pipeline or "default")
         print(f"{folder} ({pipeline or 'default'})", file=sys.stderr)
-        det = Detector(ModelLibrary.from_folder(Path(folder) / "models", cfg), cfg)
-        cached.append((f"{Path(folder).name} ({pipeline or 'default'})", cfg.verify.duplicate_weight,
-                       collect(det, open_recording(Path(folder)), args.frames)))
+        ds, lib = _first(BopDataset(Path(folder)), args.frames), ModelLibrary.from_folder(Path(folder) / "models", cfg)
+        cached.append((f"{Path(folder).name} ({pipeline or 'default'})", ds, lib, "adds", cfg.verify.duplicate_weight,
+                       collect(Detector(lib, cfg), ds)))
     if libraries:
         tmp = Path(tempfile.mkdtemp(prefix="pcdet-weights-"))
         try:
             lib8, lib40 = build_libraries(args.cat_data, tmp)
             cfg = load_pipeline("default")
+            ds = _first(BopDataset(args.cat_data), args.frames)
             for n in libraries:
                 print(f"real cat frames, {n} models", file=sys.stderr)
-                det = Detector(ModelLibrary.from_folder(lib8 if n == "8" else lib40, cfg), cfg)
-                cached.append((f"real cat, {n} models", cfg.verify.duplicate_weight,
-                               collect(det, open_recording(args.cat_data), args.frames, only=CAT, metric=add)))
+                lib = ModelLibrary.from_folder(lib8 if n == "8" else lib40, cfg)
+                cached.append((f"real cat, {n} models", ds, lib, "add", cfg.verify.duplicate_weight,
+                               collect(Detector(lib, cfg), ds)))
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
-    print("| clutter, see-through | " + " | ".join(name for name, _, _ in cached) + " |")
+    print("| clutter, see-through | " + " | ".join(c[0] for c in cached) + " |")
     print("|---|" + "---|" * len(cached))
     for wc, wv in settings:
-        cells = []
-        for _, w_dup, frames in cached:
-            found, inst, good, chosen = score(frames, w_dup, wc, wv)
-            cells.append(f"{found / max(inst, 1):.3f} / {good / max(chosen, 1):.3f}")
-        print(f"| {wc:g}, {wv:g} | " + " | ".join(cells) + " |")
+        cells = [score(ds, lib, frames, metric, w_dup, wc, wv) for _, ds, lib, metric, w_dup, frames in cached]
+        print(f"| {wc:g}, {wv:g} | " + " | ".join(f"{r:.3f} / {p:.3f}" for r, p in cells) + " |")
 
+
+def _first(ds: BopDataset, frames: int) -> BopDataset:
+    """``ds`` cut to its first ``frames`` images (0: all), so that evaluation counts only those."""
+    if frames > 0:
+        ds.images = ds.images[:frames]
+    return ds
 
 if __name__ == "__main__":
     try:
