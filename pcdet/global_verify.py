@@ -74,8 +74,8 @@ def candidate_terms(scene_points: np.ndarray, scene_tree: cKDTree, model_points:
         rest = np.setdiff1d(near, e, assume_unique=True)
         if height is not None:
             base = float((P @ plane.normal).min()) + plane.offset + explain_radius
-            rest = rest[~(level[rest] & (height[rest] <= base))]
-            e = e[~(level[e] & (height[e] <= base))]
+            support = level & (height <= base)
+            e, rest = e[~support[e]], rest[~support[rest]]
         explained.append(e)
         clutter.append(rest)
     viol = np.array([len(e) for e in explained], float) * np.asarray(violation_ratio, float)

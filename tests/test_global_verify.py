@@ -107,8 +107,7 @@ def test_what_an_object_stands_on_is_neither_its_clutter_nor_explained_by_it():
     assert len(bare.clutter[0]) > 50 and len(held.clutter[0]) == 0
     assert np.array_equal(held.clutter[1], bare.clutter[1]) and len(bare.clutter[1]) > len(bare.explained[1])
     # the cube keeps what it explains of itself; the board ring at its base is no longer its own
-    own = len(board), len(scene)
-    assert np.array_equal(held.explained[0], bare.explained[0][bare.explained[0] >= own[0]])
+    assert np.array_equal(held.explained[0], bare.explained[0][bare.explained[0] >= len(board)])
     assert len(held.explained[0]) == len(seen) and len(bare.explained[0]) > len(seen)
     assert np.array_equal(held.explained[1], bare.explained[1])  # the slab's base is 2 cm under the board
     assert len(bare.explained[2]) > 100 and len(bare.clutter[2]) > 0
