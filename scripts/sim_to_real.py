@@ -4,7 +4,10 @@ Two measurements on the same real frames (default: ../shared/data/linemod_cat, a
 1. Depth noise. A plane is fitted to every 15 x 15 patch of valid depth that is smooth (residual RMS under
    4 mm); printed are the median residual RMS and the residual's autocorrelation along a row at 1-5 pixels.
    The same statistics for each sensor model, applied to a rendered plane at the real frames' median depth.
-2. Detection. Each real frame gets a twin per sensor model: the object's mesh is rendered at its true pose,
+2. Edges. The object's mesh is rendered at its true pose; for the pixels 1, 2, 3 and 4-6 pixels inside its outline,
+   the share where the depth lies behind the mesh (beyond the verification tolerance: the sensor sees past the
+   object's edge) and the share with no depth, on the real frames and on their twins (below).
+3. Detection. Each real frame gets a twin per sensor model: the object's mesh is rendered at its true pose,
    passed through the sensor model, and pasted over the real depth wherever the render is in front of it (or
    the real depth has no return). The rest of the frame, clutter and colour included, stays real, so the twin
    differs from the real frame only in how the object itself looks to the sensor. The detector runs on the
@@ -14,6 +17,7 @@ Two measurements on the same real frames (default: ../shared/data/linemod_cat, a
    twins score as the real frames do, and miss the same frames.
 
 Run:  python scripts/sim_to_real.py [--data DIR] [--frames 20] [--sensors structured_light,independent,none]
+          [--no-detection]
 """
 from __future__ import annotations
 
@@ -21,6 +25,7 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
 from pcdet.config import load_pipeline
 from pcdet.datasets.bop import BopDataset
@@ -30,6 +35,7 @@ from pcdet.frame import Frame
 from pcdet.library import ModelLibrary
 from pcdet.render import render_meshes
 from pcdet.sensor import SENSORS, apply_sensor
+from pcdet.verify import VerifyConfig
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
 PATCH = 15
@@ -93,6 +99,45 @@ def twin(frame: Frame, model, T_cam_model: np.ndarray, sensor: str, rng: np.rand
     return Frame(depth, cam, frame.rgb, dict(frame.info))
 
 
+EDGE_BANDS = ((1, 1), (2, 2), (3, 3), (4, 6))  # pixels inside the outline, first to last
+
+
+def edge_shares(depth: np.ndarray, rendered: np.ndarray, tolerance: float) -> np.ndarray:
+    """(len(EDGE_BANDS), 3) pixel counts per band inside the outline of ``rendered`` (H, W) m (0: off the model):
+    all, depth behind the model by more than ``tolerance`` m, and no depth."""
+    inside = rendered > 0
+    dist = np.ceil(ndimage.distance_transform_edt(inside))
+    behind = (depth > 0) & (depth > rendered + tolerance)
+    out = np.zeros((len(EDGE_BANDS), 3))
+    for i, (lo, hi) in enumerate(EDGE_BANDS):
+        band = inside & (dist >= lo) & (dist <= hi)
+        out[i] = band.sum(), (band & behind).sum(), (band & (depth <= 0)).sum()
+    return out
+
+
+def edge_table(ds: BopDataset, refs, sensors: list[str]) -> None:
+    lib = ModelLibrary.from_path(ds.models_dir, load_pipeline(None))
+    tol = VerifyConfig().depth_tolerance
+    counts = {name: np.zeros((len(EDGE_BANDS), 3)) for name in ["real"] + [f"twin, {s}" for s in sensors]}
+    for i, ref in enumerate(refs):
+        frame = ds.frame(ref)
+        for g in ds.gt(ref):
+            m = lib[lib.index_of(g["obj_id"])]
+            r = render_meshes(frame.camera, [(m.vertices, m.faces, g["T_cam_model"])]).depth
+            counts["real"] += edge_shares(frame.depth, r, tol)
+            for s in sensors:
+                t = twin(frame, m, g["T_cam_model"], s, np.random.default_rng(1000 + i))
+                counts[f"twin, {s}"] += edge_shares(t.depth, r, tol)
+    bands = " | ".join(f"{lo} px" if lo == hi else f"{lo}-{hi} px" for lo, hi in EDGE_BANDS)
+    print(f"\nThe object's edge at its true pose ({len(refs)} frames): share of the pixels 1-6 px inside the outline "
+          f"where the depth lies more than {tol * 1000:.0f} mm behind the mesh / has no depth")
+    print(f"| depth | {bands} |")
+    print("|---|" + "---|" * len(EDGE_BANDS))
+    for name, c in counts.items():
+        cells = " | ".join(f"{b / max(n, 1):.2f} / {z / max(n, 1):.2f}" for n, b, z in c)
+        print(f"| {name} | {cells} |")
+
+
 def detection_table(ds: BopDataset, refs, sensors: list[str], pipeline: str | None) -> None:
     cfg = load_pipeline(pipeline)
     lib = ModelLibrary.from_path(ds.models_dir, cfg)
@@ -127,7 +172,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=20, help="Real frames used, evenly spread over the dataset.")
     ap.add_argument("--sensors", default=",".join(SENSORS))
     ap.add_argument("--pipeline", default=None)
-    ap.add_argument("--no-detection", action="store_true", help="Only the noise statistics.")
+    ap.add_argument("--no-detection", action="store_true", help="Only the noise and edge statistics.")
     a = ap.parse_args()
     sensors = [s for s in a.sensors.split(",") if s]
     for s in sensors:
@@ -136,6 +181,7 @@ def main() -> None:
     ds = BopDataset(a.data)
     refs = ds.images[:: max(1, len(ds.images) // a.frames)][: a.frames]
     noise_table(ds, refs, sensors)
+    edge_table(ds, refs, sensors)
     if not a.no_detection:
         detection_table(ds, refs, sensors, a.pipeline)
 
