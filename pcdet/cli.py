@@ -373,8 +373,9 @@ def synth(models: Path = typer.Option(MODELS_DIR, help="Folder of mesh models.")
           seed: int = typer.Option(0, help="Random seed."),
           noise: bool = typer.Option(True, help="Apply the sensor model."),
           sensor: str = typer.Option("structured_light", help="Sensor model: structured_light (Kinect-like: noise "
-                                     "correlated between neighbouring pixels, quantised disparity) or "
-                                     "independent (per-pixel noise)."),
+                                     "correlated between neighbouring pixels, quantised disparity), "
+                                     "structured_light_band (the same, seeing past objects' edges as a real Kinect "
+                                     "does, instead of dropping pixels there) or independent (per-pixel noise)."),
           units: str = typer.Option("auto", help="Model units: auto, m, cm, mm."),
           overwrite: bool = typer.Option(False, help="Replace the scenes an earlier synth wrote into OUT."),
           ):

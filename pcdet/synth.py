@@ -37,8 +37,9 @@ class SynthConfig:
     instances: copies of one object allowed per scene (up to this many); distractors: clutter objects that are
     not in the library (random boxes, cylinders, cones, spheres and capsules, 3-12 cm; no ground truth);
     distance and elevation of the camera (m, degrees); area: radius (m) of the table disc the objects stand in;
-    noise: apply the sensor model; sensor: which (``pcdet.sensor.SENSORS``: "structured_light", the default, or
-    "independent", per-pixel noise, pcdet's model until 2026-11; the scenes are the same for every model);
+    noise: apply the sensor model; sensor: which (``pcdet.sensor.SENSORS``: "structured_light", the default,
+    "structured_light_band", the same with a real Kinect's object edges, or "independent", per-pixel noise,
+    pcdet's model until 2026-11; the scenes are the same for every model);
     sequence: frames per scene (0: one image) taken by a camera that moves smoothly around the table, sweeping
     ``sweep_deg`` of azimuth while its elevation and distance waver."""
 

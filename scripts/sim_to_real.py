@@ -89,12 +89,15 @@ def noise_table(ds: BopDataset, refs, sensors: list[str]) -> None:
 
 
 def twin(frame: Frame, model, T_cam_model: np.ndarray, sensor: str, rng: np.random.Generator) -> Frame:
-    """The real ``frame`` with the object's depth replaced by its rendered mesh through ``sensor``."""
+    """The real ``frame`` with the object's depth replaced by its rendered mesh through ``sensor``: the mesh is put
+    in front of the real depth, the whole passes through the sensor model, and the object's pixels are kept."""
     cam = frame.camera
     r = render_meshes(cam, [(model.vertices, model.faces, T_cam_model)])
-    synthetic = apply_sensor(sensor, r.depth.astype(np.float64), rng, cam.fx) / 1000.0
     real = frame.depth
     front = (r.depth > 0) & ((real <= 0) | (r.depth < real + 0.01))
+    # the sensor sees the object in front of the real background, so its edges are edges against that background
+    scene = np.where(front, r.depth, real).astype(np.float64)
+    synthetic = apply_sensor(sensor, scene, rng, cam.fx) / 1000.0
     depth = np.where(front, synthetic, real).astype(np.float32)
     return Frame(depth, cam, frame.rgb, dict(frame.info))
 

@@ -45,10 +45,28 @@ def test_structured_light_noise_is_correlated_and_comes_in_disparity_steps(rng):
     assert len(levels) < 0.6 * (levels.max() - levels.min() + 1)
 
 
+def test_band_model_sees_past_foreground_edges_and_drops_nothing(rng):
+    """structured_light_band on a step (a wall at 0.8 m on the left, 1.2 m on the right, 2000 rows): the near
+    wall's pixels 1, 2 and 3 columns from the step report the far depth in the shares ``EDGE_BAND`` (within 0.04;
+    binomial standard errors about 0.011), its pixels 4 or more columns in and the whole far wall never do, and
+    no pixel is dropped (where ``structured_light`` drops pixels at the step)."""
+    from pcdet.sensor import EDGE_BAND, apply_sensor
+
+    depth = np.full((2000, 40), 1.2)
+    depth[:, :20] = 0.8
+    raw = apply_sensor("structured_light_band", depth, rng).astype(float) / 1000
+    far = raw > 1.0  # noise is a few mm: a pixel is plainly near or far
+    for n, share in enumerate(EDGE_BAND, start=1):
+        assert far[:, 20 - n].mean() == pytest.approx(share, abs=0.04)
+    assert not far[:, :20 - len(EDGE_BAND)].any() and far[:, 20:].all()
+    assert (raw > 0).all()
+    assert (apply_sensor("structured_light", depth, rng) == 0)[:, 19:21].mean() > 0.3
+
+
 def test_synth_scenes_do_not_depend_on_the_sensor_model(tmp_path, library):
     """The same seed gives the same objects and poses whichever sensor model renders them."""
     gts = []
-    for sensor in ("structured_light", "independent"):
+    for sensor in ("structured_light", "structured_light_band", "independent"):
         out = synthesize(library, tmp_path / sensor, SynthConfig(scenes=2, objects=2, seed=3, sensor=sensor))
         gts.append([json.loads((p / "scene_gt.json").read_text()) for p in sorted((out / "test").iterdir())])
     assert gts[0] == gts[1]
