@@ -7,14 +7,14 @@ Three measurements on the same real frames (default: ../shared/data/linemod_cat,
 2. Edges. The object's mesh is rendered at its true pose; for the pixels 1, 2, 3 and 4-6 pixels inside its outline,
    the share where the depth lies behind the mesh (beyond the verification tolerance: the sensor sees past the
    object's edge) and the share with no depth, on the real frames and on their twins (below).
-3. Detection. Each real frame gets a twin per sensor model: the object's mesh is rendered at its true pose and
-   put in front of the real depth (wherever the render is in front of it, or the real depth has no return), the
-   whole passes through the sensor model, and the object's pixels are kept. The rest of the frame, clutter and
-   colour included, stays real, so the twin differs from the real frame only in how the object itself looks to
-   the sensor. The detector runs on the real frame and on every twin with the object given; printed per variant: frames found (ADD < 0.1 d), scene
-   keypoints on the object and the share of them whose FPFH candidates include a correct match, and the best
-   raw hypothesis's error (diameters), and the frames missed. A sensor model predicts the real frames when its
-   twins score as the real frames do, and miss the same frames.
+3. Detection. Each real frame gets a twin per sensor model: the object's mesh is rendered at its true pose and put
+   in front of the real depth (wherever the render is in front of it, or the real depth has no return), the whole
+   passes through the sensor model, and the object's pixels are kept. The rest of the frame, clutter and colour
+   included, stays real, so the twin differs from the real frame only in how the object itself looks to the sensor.
+   The detector runs on the real frame and on every twin with the object given; printed per variant: frames found
+   (ADD < 0.1 d), scene keypoints on the object and the share of them whose FPFH candidates include a correct
+   match, and the best raw hypothesis's error (diameters), and the frames missed. A sensor model predicts the real
+   frames when its twins score as the real frames do, and miss the same frames.
 
 Run:  python scripts/sim_to_real.py [--data DIR] [--frames 20] [--no-detection]
           [--sensors structured_light,structured_light_band,independent,none]
