@@ -13,8 +13,9 @@ Three measurements on the same real frames (default: ../shared/data/linemod_cat,
    included, stays real, so the twin differs from the real frame only in how the object itself looks to the sensor.
    The detector runs on the real frame and on every twin with the object given; printed per variant: frames found
    (ADD < 0.1 d), scene keypoints on the object and the share of them whose FPFH candidates include a correct
-   match, and the best raw hypothesis's error (diameters), and the frames missed. A sensor model predicts the real
-   frames when its twins score as the real frames do, and miss the same frames.
+   match, the best raw hypothesis's error (diameters), the RMS of measured minus rendered depth 4 px or more inside
+   the outline at the pose found (how far the measured surface lies from the mesh), and the frames missed. A sensor
+   model predicts the real frames when its twins score as the real frames do, and miss the same frames.
 
 Run:  python scripts/sim_to_real.py [--data DIR] [--frames 20] [--no-detection]
           [--sensors structured_light,structured_light_band,independent,none]
@@ -33,6 +34,7 @@ from pcdet.detector import Detector
 from pcdet.diagnose import diagnose_frame
 from pcdet.frame import Frame
 from pcdet.library import ModelLibrary
+from pcdet.metrics import add
 from pcdet.render import render_meshes
 from pcdet.sensor import SENSORS, apply_sensor
 from pcdet.verify import VerifyConfig
@@ -141,32 +143,57 @@ def edge_table(ds: BopDataset, refs, sensors: list[str]) -> None:
         print(f"| {name} | {cells} |")
 
 
+def surface_residual(det: Detector, frame: Frame, model, T_true: np.ndarray, targets: dict) -> float | None:
+    """RMS (m) of measured minus rendered depth over the pixels 4 or more px inside the outline of ``model`` at the
+    detector's own pose (residuals beyond the verification tolerance left out), or None when the detector does
+    not find the object within 0.1 d of ``T_true``: how far the surface the sensor measures lies from the mesh."""
+    tol = det.config.verify.depth_tolerance
+    found = [d for d in det.detect(frame, targets).detections if d.obj_id == model.obj_id
+             and add(d.T_cam_model, T_true, model.points) < 0.1 * model.diameter]
+    if not found:
+        return None
+    r = render_meshes(frame.camera, [(model.vertices, model.faces, found[0].T_cam_model)]).depth
+    inside = r > 0
+    deep = inside & (ndimage.distance_transform_edt(inside) >= 4) & (frame.depth > 0)
+    e = (frame.depth - r)[deep]
+    e = e[np.abs(e) <= tol]
+    return float(np.sqrt(np.mean(e * e))) if len(e) else None
+
+
 def detection_table(ds: BopDataset, refs, sensors: list[str], pipeline: str | None) -> None:
     cfg = load_pipeline(pipeline)
     lib = ModelLibrary.from_path(ds.models_dir, cfg)
     det = Detector(lib, cfg)
     rows = {name: [] for name in ["real"] + [f"twin, {s}" for s in sensors]}
+    surface = {name: [] for name in rows}
     for i, ref in enumerate(refs):
         frame, gts, targets = ds.frame(ref), ds.gt(ref), ds.targets(ref)
         ids = {"scene_id": ref.scene_id, "im_id": ref.im_id}
         rows["real"] += diagnose_frame(det, frame, gts, targets, **ids)
+        for g in gts:
+            surface["real"].append(surface_residual(det, frame, lib[lib.index_of(g["obj_id"])], g["T_cam_model"],
+                                                    targets))
         for s in sensors:
             rng = np.random.default_rng(1000 + i)
             for g in gts:
-                frame_t = twin(frame, lib[lib.index_of(g["obj_id"])], g["T_cam_model"], s, rng)
+                m = lib[lib.index_of(g["obj_id"])]
+                frame_t = twin(frame, m, g["T_cam_model"], s, rng)
                 rows[f"twin, {s}"] += diagnose_frame(det, frame_t, [g], targets, **ids)
+                surface[f"twin, {s}"].append(surface_residual(det, frame_t, m, g["T_cam_model"], targets))
         print(f"  frame {i + 1}/{len(refs)}", flush=True)
     print(f"\nDetection with the object given ({len(refs)} frames; {pipeline or 'default'} pipeline)")
     print("| frames | found (ADD < 0.1 d) | keypoints on the object (median) | share with a correct match (median) | "
-          "best raw hypothesis (d, median) | missed (image ids) |")
-    print("|---|---|---|---|---|---|")
+          "best raw hypothesis (d, median) | surface residual at the pose found (mm RMS, median) | missed (image ids) |")
+    print("|---|---|---|---|---|---|---|")
     for name, rs in rows.items():
         found = sum(r.stage == "found" for r in rs)
         on = np.median([r.keypoints_on for r in rs])
         share = np.median([r.keypoints_matched / max(r.keypoints_on, 1) for r in rs])
         raw = np.median([r.best_raw for r in rs])
         missed = ", ".join(str(r.im_id) for r in rs if r.stage != "found") or "none"
-        print(f"| {name} | {found} / {len(rs)} | {on:.0f} | {share:.3f} | {raw:.3f} | {missed} |")
+        res = [x for x in surface[name] if x is not None]
+        res_cell = f"{np.median(res) * 1000:.2f}" if res else "-"
+        print(f"| {name} | {found} / {len(rs)} | {on:.0f} | {share:.3f} | {raw:.3f} | {res_cell} | {missed} |")
 
 
 def main() -> None:
