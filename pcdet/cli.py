@@ -376,6 +376,10 @@ def synth(models: Path = typer.Option(MODELS_DIR, help="Folder of mesh models.")
                                      "correlated between neighbouring pixels, quantised disparity), "
                                      "structured_light_band (the same, seeing past objects' edges as a real Kinect "
                                      "does, instead of dropping pixels there) or independent (per-pixel noise)."),
+          mesh_error: float = typer.Option(0.0, help="mm RMS: render each object from a copy of its mesh moved "
+                                           "along its normals by a smooth random field this size (correlated over "
+                                           "13 mm), as a real object differs from its scan; models/ keeps the "
+                                           "meshes as given (0: off)."),
           units: str = typer.Option("auto", help="Model units: auto, m, cm, mm."),
           overwrite: bool = typer.Option(False, help="Replace the scenes an earlier synth wrote into OUT."),
           ):
@@ -383,8 +387,10 @@ def synth(models: Path = typer.Option(MODELS_DIR, help="Folder of mesh models.")
     from .config import PipelineConfig
     from .synth import SynthConfig, check_synth_folder, synthesize
 
+    if mesh_error < 0:
+        fail(f"--mesh-error must be >= 0 (mm RMS), got {mesh_error:g}")
     cfg = SynthConfig(scenes=scenes, objects=objects, instances=instances, distractors=distractors, seed=seed,
-                      noise=noise, sensor=sensor, sequence=sequence)
+                      noise=noise, sensor=sensor, sequence=sequence, mesh_error=mesh_error / 1000.0)
     check_synth_folder(check_folder(out, "dataset folder"), overwrite=overwrite)
     lib = _library(models, PipelineConfig(), units)
     with _progress(detections=False) as prog:

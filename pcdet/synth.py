@@ -41,7 +41,11 @@ class SynthConfig:
     "structured_light_band", the same with a real Kinect's object edges, or "independent", per-pixel noise,
     pcdet's model until 2026-11; the scenes are the same for every model);
     sequence: frames per scene (0: one image) taken by a camera that moves smoothly around the table, sweeping
-    ``sweep_deg`` of azimuth while its elevation and distance waver."""
+    ``sweep_deg`` of azimuth while its elevation and distance waver; mesh_error (m RMS) and mesh_error_length (m):
+    each library object is rendered from a copy of its mesh whose surface is moved along its normals by a smooth
+    random field of that size and correlation length (``perturbed_mesh``), while ``models/`` keeps the meshes as
+    given, so the objects differ from their models as a real object differs from its scan (0: the meshes as
+    they are; the scenes' poses are the same either way)."""
 
     scenes: int = 20
     objects: int = 4
@@ -55,6 +59,8 @@ class SynthConfig:
     seed: int = 0
     sequence: int = 0
     sweep_deg: float = 90.0
+    mesh_error: float = 0.0
+    mesh_error_length: float = 0.013
 
     def __post_init__(self):
         for name, low in (("scenes", 1), ("objects", 1), ("instances", 1), ("distractors", 0), ("sequence", 0)):
@@ -62,6 +68,9 @@ class SynthConfig:
                 raise ConfigError(f"synth {name} must be >= {low}, got {getattr(self, name)}")
         if self.sensor not in SENSORS:
             raise ConfigError(f"synth sensor must be one of {', '.join(SENSORS)}, got {self.sensor!r}")
+        if self.mesh_error < 0 or self.mesh_error_length <= 0:
+            raise ConfigError(f"synth mesh_error must be >= 0 and mesh_error_length > 0, got {self.mesh_error} and "
+                              f"{self.mesh_error_length}")
 
 
 def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -175,13 +184,35 @@ def compose_scene(lib: ModelLibrary, cfg: SynthConfig, rng: np.random.Generator,
     return placed, clutter
 
 
-def render_scene(lib, placed, T_world_cam, camera, rng, *, clutter=(), sensor="structured_light"):
+def perturbed_mesh(vertices: np.ndarray, faces: np.ndarray, rms: float, length: float, rng: np.random.Generator
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """A copy of the mesh (vertices (V, 3) m, faces (F, 3)) with its surface moved along the vertex normals by a
+    smooth random field: RMS ``rms`` m over the vertices, its correlation a Gaussian of standard deviation
+    ``length`` m (64 random Fourier features of that kernel). The mesh is first subdivided to edges of at most ``length`` / 2, so that
+    a coarse mesh (a box of 12 triangles) can bend too. Returns (vertices, faces) of the copy."""
+    import trimesh
+
+    v, f = trimesh.remesh.subdivide_to_size(np.asarray(vertices, float), np.asarray(faces), max_edge=length / 2,
+                                            max_iter=20)
+    mesh = trimesh.Trimesh(v, f, process=True)  # duplicate vertices (texture seams) merged: no cracks open
+    v, f, normals = np.asarray(mesh.vertices), np.asarray(mesh.faces), np.asarray(mesh.vertex_normals)
+    w = rng.normal(size=(64, 3)) / length
+    phase = rng.uniform(0, 2 * np.pi, 64)
+    field = np.cos(v @ w.T + phase).sum(axis=1)
+    field /= max(float(np.sqrt(np.mean(field ** 2))), 1e-12)
+    return v + (rms * field)[:, None] * normals, f
+
+
+def render_scene(lib, placed, T_world_cam, camera, rng, *, clutter=(), sensor="structured_light", shapes=None):
     """Render one view of the library objects ``placed`` and the distractors ``clutter`` (see
     ``compose_scene``) through the sensor model ``sensor`` (``pcdet.sensor.SENSORS``; "none": depth rounded to
-    1 mm): returns (raw depth uint16 mm, rgb uint8, gt list, gt_info list); ground truth covers ``placed`` only."""
+    1 mm): returns (raw depth uint16 mm, rgb uint8, gt list, gt_info list); ground truth covers ``placed`` only.
+    ``shapes``: {library index: (vertices, faces)} rendered instead of the library's own mesh (``perturbed_mesh``)."""
     T_cam_world = np.linalg.inv(T_world_cam)
     tv, tf = _table_mesh()
-    meshes = [(tv, tf, T_cam_world)] + [(lib[i].vertices, lib[i].faces, T_cam_world @ T) for i, T in placed]
+    shapes = shapes or {}
+    shape = {i: shapes.get(i, (lib[i].vertices, lib[i].faces)) for i, _ in placed}
+    meshes = [(tv, tf, T_cam_world)] + [(*shape[i], T_cam_world @ T) for i, T in placed]
     meshes += [(v, f, T_cam_world @ T) for v, f, T in clutter]
     r = render_meshes(camera, meshes)
     raw = apply_sensor(sensor, r.depth, rng, camera.fx)
@@ -193,7 +224,7 @@ def render_scene(lib, placed, T_world_cam, camera, rng, *, clutter=(), sensor="s
     gt, info = [], []
     for k, (i, T) in enumerate(placed, start=1):
         T_cm = T_cam_world @ T
-        alone = render_meshes(camera, [(lib[i].vertices, lib[i].faces, T_cm)])
+        alone = render_meshes(camera, [(*shape[i], T_cm)])
         all_px = alone.ids >= 0
         vis_px = (r.ids == k) & (raw > 0)
         n_all, n_vis = int(all_px.sum()), int(vis_px.sum())
@@ -275,6 +306,11 @@ def synthesize(lib: ModelLibrary, out, cfg: SynthConfig, camera: Camera = KINECT
     rng = np.random.default_rng(cfg.seed)
     sensor_rng = np.random.default_rng([cfg.seed, 1])  # its own stream: the scenes do not depend on the sensor model
     placer = _Placer({i: (m.vertices, m.faces) for i, m in enumerate(lib)})
+    shapes = None
+    if cfg.mesh_error > 0:  # its own stream too: the scenes and the sensor's draws do not depend on it
+        mesh_rng = np.random.default_rng([cfg.seed, 2])
+        shapes = {i: perturbed_mesh(m.vertices, m.faces, cfg.mesh_error, cfg.mesh_error_length, mesh_rng)
+                  for i, m in enumerate(lib)}
     write_models(lib, out / "models")
     atomic_write_text(out / "camera.json", json.dumps({"cx": camera.cx, "cy": camera.cy, "fx": camera.fx,
                                                         "fy": camera.fy, "width": camera.width,
@@ -289,7 +325,7 @@ def synthesize(lib: ModelLibrary, out, cfg: SynthConfig, camera: Camera = KINECT
         cams, gts, infos = {}, {}, {}
         for k, T_world_cam in enumerate(camera_path(az, el, dist, target, cfg)):
             raw, rgb, gt, info = render_scene(lib, placed, T_world_cam, camera, sensor_rng, clutter=clutter,
-                                              sensor=cfg.sensor if cfg.noise else "none")
+                                              sensor=cfg.sensor if cfg.noise else "none", shapes=shapes)
             write_depth_png(sdir / "depth" / f"{k:06d}.png", raw)
             write_png(sdir / "rgb" / f"{k:06d}.png", rgb)
             cams[str(k)] = {**camera_to_bop(camera.K, 1.0), **camera_pose_to_bop(T_world_cam)}

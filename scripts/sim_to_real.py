@@ -18,7 +18,7 @@ Three measurements on the same real frames (default: ../shared/data/linemod_cat,
    model predicts the real frames when its twins score as the real frames do, and miss the same frames.
 
 Run:  python scripts/sim_to_real.py [--data DIR] [--frames 20] [--no-detection]
-          [--sensors structured_light,structured_light_band,independent,none] [--mesh-error MM [--mesh-error-px 6]]
+          [--sensors structured_light,structured_light_band,independent,none] [--mesh-error MM]
 """
 from __future__ import annotations
 
@@ -27,7 +27,6 @@ from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
-from scipy.ndimage import gaussian_filter
 
 from pcdet.config import load_pipeline
 from pcdet.datasets.bop import BopDataset
@@ -38,6 +37,7 @@ from pcdet.library import ModelLibrary
 from pcdet.metrics import add
 from pcdet.render import render_meshes
 from pcdet.sensor import SENSORS, apply_sensor
+from pcdet.synth import SynthConfig, perturbed_mesh
 from pcdet.verify import VerifyConfig
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
@@ -92,20 +92,17 @@ def noise_table(ds: BopDataset, refs, sensors: list[str]) -> None:
 
 
 def twin(frame: Frame, model, T_cam_model: np.ndarray, sensor: str, rng: np.random.Generator, *,
-         mesh_error: tuple[float, float] = (0.0, 0.0)) -> Frame:
+         shape: tuple[np.ndarray, np.ndarray] | None = None) -> Frame:
     """The real ``frame`` with the object's depth replaced by its rendered mesh through ``sensor``: the mesh is put
     in front of the real depth, the whole passes through the sensor model, and the object's pixels are kept.
-    ``mesh_error`` (RMS m, correlation px): the rendered surface is first moved along the rays by a smooth random
-    field of that size (white noise blurred by a Gaussian of that many pixels), as a mesh that is off the real
-    object would be (0: the mesh as it is)."""
+    ``shape``: (vertices, faces) rendered instead of the model's mesh (a copy bent by ``synth.perturbed_mesh``, as
+    ``pcdet synth --mesh-error`` renders its objects)."""
     cam = frame.camera
-    r = render_meshes(cam, [(model.vertices, model.faces, T_cam_model)])
+    v, f = shape if shape is not None else (model.vertices, model.faces)
+    r = render_meshes(cam, [(v, f, T_cam_model)])
     real = frame.depth
     front = (r.depth > 0) & ((real <= 0) | (r.depth < real + 0.01))
     obj = r.depth.astype(np.float64)
-    if mesh_error[0] > 0:
-        field = gaussian_filter(rng.normal(size=obj.shape), mesh_error[1], mode="reflect")
-        obj = np.where(obj > 0, obj + mesh_error[0] * field / max(float(field.std()), 1e-12), 0.0)
     # the sensor sees the object in front of the real background, so its edges are edges against that background
     scene = np.where(front, obj, real).astype(np.float64)
     synthetic = apply_sensor(sensor, scene, rng, cam.fx) / 1000.0
@@ -169,11 +166,15 @@ def surface_residual(det: Detector, frame: Frame, model, T_true: np.ndarray, tar
     return float(np.sqrt(np.mean(e * e))) if len(e) else None
 
 
-def detection_table(ds: BopDataset, refs, sensors: list[str], pipeline: str | None,
-                    mesh_error: tuple[float, float] = (0.0, 0.0)) -> None:
+def detection_table(ds: BopDataset, refs, sensors: list[str], pipeline: str | None, mesh_error: float = 0.0) -> None:
     cfg = load_pipeline(pipeline)
     lib = ModelLibrary.from_path(ds.models_dir, cfg)
     det = Detector(lib, cfg)
+    shapes = {}
+    if mesh_error > 0:  # each model bent once, as pcdet synth does (its default correlation length)
+        rng = np.random.default_rng(2)
+        shapes = {m.obj_id: perturbed_mesh(m.vertices, m.faces, mesh_error, SynthConfig().mesh_error_length, rng)
+                  for m in lib}
     rows = {name: [] for name in ["real"] + [f"twin, {s}" for s in sensors]}
     surface = {name: [] for name in rows}
     for i, ref in enumerate(refs):
@@ -187,13 +188,11 @@ def detection_table(ds: BopDataset, refs, sensors: list[str], pipeline: str | No
             rng = np.random.default_rng(1000 + i)
             for g in gts:
                 m = lib[lib.index_of(g["obj_id"])]
-                frame_t = twin(frame, m, g["T_cam_model"], s, rng, mesh_error=mesh_error)
+                frame_t = twin(frame, m, g["T_cam_model"], s, rng, shape=shapes.get(m.obj_id))
                 rows[f"twin, {s}"] += diagnose_frame(det, frame_t, [g], targets, **ids)
                 surface[f"twin, {s}"].append(surface_residual(det, frame_t, m, g["T_cam_model"], targets))
         print(f"  frame {i + 1}/{len(refs)}", flush=True)
-    extra = ""
-    if mesh_error[0] > 0:
-        extra = f"; the twins' mesh moved by {mesh_error[0] * 1000:.1f} mm RMS, correlated over {mesh_error[1]:g} px"
+    extra = f"; the twins' meshes bent by {mesh_error * 1000:.1f} mm RMS" if mesh_error > 0 else ""
     print(f"\nDetection with the object given ({len(refs)} frames; {pipeline or 'default'} pipeline{extra})")
     print("| frames | found (ADD < 0.1 d) | keypoints on the object (median) | share with a correct match (median) | "
           "best raw hypothesis (d, median) | surface residual at the pose found (mm RMS, median) | missed (image ids) |")
@@ -217,12 +216,11 @@ def main() -> None:
     ap.add_argument("--pipeline", default=None)
     ap.add_argument("--no-detection", action="store_true", help="Only the noise and edge statistics.")
     ap.add_argument("--mesh-error", type=float, default=0.0,
-                    help="mm RMS: in the detection table, move the twins' rendered surface by a smooth random field "
-                         "this size (a mesh off the real object; 0: off)")
-    ap.add_argument("--mesh-error-px", type=float, default=6.0, help="correlation of that field (Gaussian, pixels)")
+                    help="mm RMS: in the detection table, render the twins from meshes bent as pcdet synth "
+                         "--mesh-error bends them (a mesh off the real object; 0: off)")
     a = ap.parse_args()
-    if a.mesh_error < 0 or a.mesh_error_px <= 0:
-        raise SystemExit("error: --mesh-error must be >= 0 and --mesh-error-px > 0")
+    if a.mesh_error < 0:
+        raise SystemExit("error: --mesh-error must be >= 0 (mm RMS)")
     sensors = [s for s in a.sensors.split(",") if s]
     for s in sensors:
         if s not in SENSORS:
@@ -232,7 +230,7 @@ def main() -> None:
     noise_table(ds, refs, sensors)
     edge_table(ds, refs, sensors)
     if not a.no_detection:
-        detection_table(ds, refs, sensors, a.pipeline, (a.mesh_error / 1000.0, a.mesh_error_px))
+        detection_table(ds, refs, sensors, a.pipeline, a.mesh_error / 1000.0)
 
 
 if __name__ == "__main__":

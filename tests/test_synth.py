@@ -63,6 +63,53 @@ def test_band_model_sees_past_foreground_edges_and_drops_nothing(rng):
     assert (apply_sensor("structured_light", depth, rng) == 0)[:, 19:21].mean() > 0.3
 
 
+def test_perturbed_mesh_moves_the_surface_smoothly_by_the_rms_asked():
+    """A 10 x 6 x 4 cm box bent with 1.2 mm RMS over 13 mm: the same faces as the unbent copy (subdivided to edges
+    of 6.5 mm or less, so that the box can bend at all), vertices moved by 1.2 mm RMS (to 1e-9 m), and smoothly:
+    the moves of vertices under 3 mm apart correlate above 0.9, those more than 6 cm apart below 0.3 in size."""
+    import trimesh
+
+    from pcdet.synth import perturbed_mesh
+
+    box = trimesh.creation.box((0.1, 0.06, 0.04))
+    v0, f0 = perturbed_mesh(box.vertices, box.faces, 0.0, 0.013, np.random.default_rng(0))
+    v1, f1 = perturbed_mesh(box.vertices, box.faces, 0.0012, 0.013, np.random.default_rng(0))
+    assert len(f0) > 100 * len(box.faces) and np.array_equal(f0, f1)
+    edges = np.linalg.norm(v0[f0[:, [1, 2, 0]]] - v0[f0], axis=2)
+    assert edges.max() <= 0.0065 + 1e-9
+    d = v1 - v0
+    assert np.sqrt(np.mean(np.sum(d * d, axis=1))) == pytest.approx(0.0012, abs=1e-9)
+    normals = trimesh.Trimesh(v0, f0, process=False).vertex_normals
+    m = np.sum(d * normals, axis=1)  # the signed move along the normal
+    pairs = cKDTree(v0).query_pairs(0.003, output_type="ndarray")
+    assert np.corrcoef(m[pairs[:, 0]], m[pairs[:, 1]])[0, 1] > 0.9
+    rng = np.random.default_rng(1)
+    a, b = rng.integers(0, len(v0), (2, 20000))
+    far = np.linalg.norm(v0[a] - v0[b], axis=1) > 0.06
+    assert abs(np.corrcoef(m[a[far]], m[b[far]])[0, 1]) < 0.3
+
+
+def test_synth_mesh_error_bends_the_objects_not_the_scenes_or_models(tmp_path, library):
+    """--mesh-error: the same poses and the same models/ as without it, but the objects' depth differs (by about
+    the RMS asked: 1 to 4 mm median where both have depth on an object; the sensor model off, so only the
+    meshes differ), and the table's depth not at all."""
+    outs = {}
+    for err in (0.0, 0.002):
+        cfg = SynthConfig(scenes=1, objects=2, seed=5, noise=False, mesh_error=err)
+        outs[err] = synthesize(library, tmp_path / str(err), cfg)
+    a, b = (BopDataset(outs[e]) for e in (0.0, 0.002))
+    gt = [(outs[e] / "test" / "000001" / "scene_gt.json").read_text() for e in (0.0, 0.002)]
+    assert gt[0] == gt[1]
+    for p in sorted((outs[0.0] / "models").iterdir()):
+        assert p.read_bytes() == (outs[0.002] / "models" / p.name).read_bytes()
+    da, db = a.frame(a.images[0]).depth, b.frame(b.images[0]).depth
+    both = (da > 0) & (db > 0)
+    diff = np.abs(da - db)[both]
+    moved = diff > 0
+    assert 0.001 < np.median(diff[moved]) < 0.004
+    assert moved.mean() < 0.5  # the table (most of the image) is untouched
+
+
 def test_synth_scenes_do_not_depend_on_the_sensor_model(tmp_path, library):
     """The same seed gives the same objects and poses whichever sensor model renders them."""
     gts = []
