@@ -149,10 +149,12 @@ def edge_table(ds: BopDataset, refs, sensors: list[str]) -> None:
         print(f"| {name} | {cells} |")
 
 
-def surface_residual(det: Detector, frame: Frame, model, T_true: np.ndarray, targets: dict) -> float | None:
-    """RMS (m) of measured minus rendered depth over the pixels 4 or more px inside the outline of ``model`` at the
-    detector's own pose (residuals beyond the verification tolerance left out), or None when the detector does
-    not find the object within 0.1 d of ``T_true``: how far the surface the sensor measures lies from the mesh."""
+def surface_residual(det: Detector, frame: Frame, model, T_true: np.ndarray, targets: dict
+                     ) -> tuple[float, np.ndarray] | None:
+    """At the detector's own pose of ``model`` in ``frame``: the RMS (m) of measured minus rendered depth over the
+    pixels 4 or more px inside its outline (residuals beyond the verification tolerance left out), how far the
+    surface the sensor measures lies from the mesh; and the edge counts of ``edge_shares`` there. None when the
+    detector does not find the object within 0.1 d of ``T_true``."""
     tol = det.config.verify.depth_tolerance
     found = [d for d in det.detect(frame, targets).detections if d.obj_id == model.obj_id
              and add(d.T_cam_model, T_true, model.points) < 0.1 * model.diameter]
@@ -163,7 +165,7 @@ def surface_residual(det: Detector, frame: Frame, model, T_true: np.ndarray, tar
     deep = inside & (ndimage.distance_transform_edt(inside) >= 4) & (frame.depth > 0)
     e = (frame.depth - r)[deep]
     e = e[np.abs(e) <= tol]
-    return float(np.sqrt(np.mean(e * e))) if len(e) else None
+    return (float(np.sqrt(np.mean(e * e))) if len(e) else float("nan")), edge_shares(frame.depth, r, tol)
 
 
 def detection_table(ds: BopDataset, refs, sensors: list[str], pipeline: str | None, mesh_error: float = 0.0) -> None:
@@ -203,9 +205,15 @@ def detection_table(ds: BopDataset, refs, sensors: list[str], pipeline: str | No
         share = np.median([r.keypoints_matched / max(r.keypoints_on, 1) for r in rs])
         raw = np.median([r.best_raw for r in rs])
         missed = ", ".join(str(r.im_id) for r in rs if r.stage != "found") or "none"
-        res = [x for x in surface[name] if x is not None]
+        res = [x[0] for x in surface[name] if x is not None]
         res_cell = f"{np.median(res) * 1000:.2f}" if res else "-"
         print(f"| {name} | {found} / {len(rs)} | {on:.0f} | {share:.3f} | {raw:.3f} | {res_cell} | {missed} |")
+    at_pose = [x[1] for x in surface["real"] if x is not None]
+    if at_pose:  # the edge table again, at the poses found instead of the dataset's (which may be a pixel off)
+        c = np.sum(at_pose, axis=0)
+        cells = ", ".join(f"{lo}{'' if lo == hi else f'-{hi}'} px {b / max(n, 1):.2f}" for (lo, hi), (n, b, _)
+                          in zip(EDGE_BANDS, c))
+        print(f"\nReal frames at the poses found ({len(at_pose)}): depth behind the mesh inside the outline at {cells}")
 
 
 def main() -> None:
