@@ -58,12 +58,14 @@ def _terms(v) -> dict:
 
 
 def diagnose_frame(det: Detector, frame, gts: list[dict], targets: dict | None, *, metric: str = "add",
-                   threshold: float = 0.1, scene_id: int = 0, im_id: int = 0) -> list[InstanceDiagnosis]:
+                   threshold: float = 0.1, scene_id: int = 0, im_id: int = 0, trace: Trace | None = None
+                   ) -> list[InstanceDiagnosis]:
     """Detect in ``frame`` with a trace and diagnose each of ``gts`` ([{"obj_id", "T_cam_model",
-    "visib_fract"}], camera frame) against it."""
+    "visib_fract"}], camera frame) against it. ``trace``: the ``Trace`` to fill (for a caller that wants the
+    poses too); a new one when None."""
     import time
 
-    trace = Trace()
+    trace = Trace() if trace is None else trace
     t0 = time.perf_counter()
     det.detect(frame, targets, trace=trace)
     seconds = time.perf_counter() - t0

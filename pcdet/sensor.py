@@ -48,11 +48,10 @@ def _edge_drop(depth: np.ndarray, rng: np.random.Generator, edge_jump: float, ed
     return valid & (span > edge_jump) & (rng.random(depth.shape) < edge_drop)
 
 
-def _edge_band(depth: np.ndarray, rng: np.random.Generator, edge_jump: float, shares=None) -> np.ndarray:
+def _edge_band(depth: np.ndarray, rng: np.random.Generator, edge_jump: float, shares=EDGE_BAND) -> np.ndarray:
     """(H, W) depth m with pixels near a foreground edge replaced by the depth beyond it: a valid pixel with a
     neighbour more than ``edge_jump`` m farther within ``n`` pixels (and none within fewer) takes the farthest
     such depth with probability ``shares[n - 1]``, as a real depth camera sees past an object's outline."""
-    shares = EDGE_BAND if shares is None else shares
     valid = depth > 0
     out = depth.copy()
     done = ~valid

@@ -30,7 +30,7 @@ from scipy import ndimage
 
 from pcdet.config import load_pipeline
 from pcdet.datasets.bop import BopDataset
-from pcdet.detector import Detector
+from pcdet.detector import Detector, Trace
 from pcdet.diagnose import diagnose_frame
 from pcdet.frame import Frame
 from pcdet.library import ModelLibrary
@@ -102,9 +102,8 @@ def twin(frame: Frame, model, T_cam_model: np.ndarray, sensor: str, rng: np.rand
     r = render_meshes(cam, [(v, f, T_cam_model)])
     real = frame.depth
     front = (r.depth > 0) & ((real <= 0) | (r.depth < real + 0.01))
-    obj = r.depth.astype(np.float64)
     # the sensor sees the object in front of the real background, so its edges are edges against that background
-    scene = np.where(front, obj, real).astype(np.float64)
+    scene = np.where(front, r.depth, real).astype(np.float64)
     synthetic = apply_sensor(sensor, scene, rng, cam.fx) / 1000.0
     depth = np.where(front, synthetic, real).astype(np.float32)
     return Frame(depth, cam, frame.rgb, dict(frame.info))
@@ -149,29 +148,32 @@ def edge_table(ds: BopDataset, refs, sensors: list[str]) -> None:
         print(f"| {name} | {cells} |")
 
 
-def surface_residual(det: Detector, frame: Frame, model, T_true: np.ndarray, targets: dict
-                     ) -> tuple[float, np.ndarray] | None:
-    """At the detector's own pose of ``model`` in ``frame``: the RMS (m) of measured minus rendered depth over the
-    pixels 4 or more px inside its outline (residuals beyond the verification tolerance left out), how far the
-    surface the sensor measures lies from the mesh; and the edge counts of ``edge_shares`` there. None when the
-    detector does not find the object within 0.1 d of ``T_true``."""
-    tol = det.config.verify.depth_tolerance
-    found = [d for d in det.detect(frame, targets).detections if d.obj_id == model.obj_id
-             and add(d.T_cam_model, T_true, model.points) < 0.1 * model.diameter]
-    if not found:
+def surface_residual(trace: Trace, frame: Frame, lib: ModelLibrary, obj_id: int, T_true: np.ndarray,
+                     tolerance: float) -> tuple[float, np.ndarray] | None:
+    """At the kept pose of object ``obj_id`` of ``lib`` nearest ``T_true`` (``trace``: the detection in ``frame``):
+    the RMS (m) of measured minus rendered depth over the pixels 4 or more px inside its outline (residuals beyond
+    ``tolerance`` m left out), how far the surface the sensor measures lies from the mesh; and the edge counts of
+    ``edge_shares`` there. None when no kept pose lies within 0.1 d of ``T_true`` (ADD)."""
+    mi = lib.index_of(obj_id)
+    model = lib[mi]
+    kept = [trace.registrations[r].T_target_source for r in trace.kept
+            if trace.hypotheses[trace.refined[r]].model_index == mi]
+    found = sorted((add(T, T_true, model.points), i) for i, T in enumerate(kept))
+    if not found or found[0][0] >= 0.1 * model.diameter:
         return None
-    r = render_meshes(frame.camera, [(model.vertices, model.faces, found[0].T_cam_model)]).depth
+    r = render_meshes(frame.camera, [(model.vertices, model.faces, kept[found[0][1]])]).depth
     inside = r > 0
     deep = inside & (ndimage.distance_transform_edt(inside) >= 4) & (frame.depth > 0)
     e = (frame.depth - r)[deep]
-    e = e[np.abs(e) <= tol]
-    return (float(np.sqrt(np.mean(e * e))) if len(e) else float("nan")), edge_shares(frame.depth, r, tol)
+    e = e[np.abs(e) <= tolerance]
+    return (float(np.sqrt(np.mean(e * e))) if len(e) else float("nan")), edge_shares(frame.depth, r, tolerance)
 
 
 def detection_table(ds: BopDataset, refs, sensors: list[str], pipeline: str | None, mesh_error: float = 0.0) -> None:
     cfg = load_pipeline(pipeline)
     lib = ModelLibrary.from_path(ds.models_dir, cfg)
     det = Detector(lib, cfg)
+    tol = cfg.verify.depth_tolerance
     shapes = {}
     if mesh_error > 0:  # each model bent once, as pcdet synth does (its default correlation length)
         rng = np.random.default_rng(2)
@@ -182,17 +184,18 @@ def detection_table(ds: BopDataset, refs, sensors: list[str], pipeline: str | No
     for i, ref in enumerate(refs):
         frame, gts, targets = ds.frame(ref), ds.gt(ref), ds.targets(ref)
         ids = {"scene_id": ref.scene_id, "im_id": ref.im_id}
-        rows["real"] += diagnose_frame(det, frame, gts, targets, **ids)
+        tr = Trace()
+        rows["real"] += diagnose_frame(det, frame, gts, targets, trace=tr, **ids)
         for g in gts:
-            surface["real"].append(surface_residual(det, frame, lib[lib.index_of(g["obj_id"])], g["T_cam_model"],
-                                                    targets))
+            surface["real"].append(surface_residual(tr, frame, lib, g["obj_id"], g["T_cam_model"], tol))
         for s in sensors:
             rng = np.random.default_rng(1000 + i)
             for g in gts:
                 m = lib[lib.index_of(g["obj_id"])]
                 frame_t = twin(frame, m, g["T_cam_model"], s, rng, shape=shapes.get(m.obj_id))
-                rows[f"twin, {s}"] += diagnose_frame(det, frame_t, [g], targets, **ids)
-                surface[f"twin, {s}"].append(surface_residual(det, frame_t, m, g["T_cam_model"], targets))
+                tr = Trace()
+                rows[f"twin, {s}"] += diagnose_frame(det, frame_t, [g], targets, trace=tr, **ids)
+                surface[f"twin, {s}"].append(surface_residual(tr, frame_t, lib, g["obj_id"], g["T_cam_model"], tol))
         print(f"  frame {i + 1}/{len(refs)}", flush=True)
     extra = f"; the twins' meshes bent by {mesh_error * 1000:.1f} mm RMS" if mesh_error > 0 else ""
     print(f"\nDetection with the object given ({len(refs)} frames; {pipeline or 'default'} pipeline{extra})")
