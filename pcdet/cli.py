@@ -372,14 +372,15 @@ def synth(models: Path = typer.Option(MODELS_DIR, help="Folder of mesh models.")
                                        "(0: one image per scene)."),
           seed: int = typer.Option(0, help="Random seed."),
           noise: bool = typer.Option(True, help="Apply the sensor model."),
-          sensor: str = typer.Option("structured_light", help="Sensor model: structured_light (Kinect-like: noise "
-                                     "correlated between neighbouring pixels, quantised disparity), "
-                                     "structured_light_band (the same, seeing past objects' edges as a real Kinect "
-                                     "does, instead of dropping pixels there) or independent (per-pixel noise)."),
-          mesh_error: float = typer.Option(0.0, help="mm RMS: render each object from a copy of its mesh moved "
+          sensor: str = typer.Option("structured_light_band", help="Sensor model: structured_light_band (Kinect-"
+                                     "like: noise correlated between neighbouring pixels, quantised disparity, and "
+                                     "objects' edges seen past as a real Kinect does), structured_light (the same "
+                                     "noise, edge pixels dropped instead; the default until 2026-12) or "
+                                     "independent (per-pixel noise)."),
+          mesh_error: float = typer.Option(1.2, help="mm RMS: render each object from a copy of its mesh moved "
                                            "along its normals by a smooth random field this size (correlated over "
                                            "13 mm), as a real object differs from its scan; models/ keeps the "
-                                           "meshes as given (0: off)."),
+                                           "meshes as given (0: off, the meshes exactly as the models)."),
           units: str = typer.Option("auto", help="Model units: auto, m, cm, mm."),
           overwrite: bool = typer.Option(False, help="Replace the scenes an earlier synth wrote into OUT."),
           ):

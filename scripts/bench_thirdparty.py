@@ -12,12 +12,13 @@ PCL's milk carton is not used: its model is a single view cut out of a scene, an
 
 Scenes: ``pcdet synth --objects 2 --instances 3 --distractors 3``: two of the five meshes per scene, each with
 one to three copies, among three random clutter shapes (boxes, cylinders, cones, spheres, capsules) that are
-not in the library; the structured-light sensor model. Every pipeline searches all five models and is told
-nothing. Scores, from ``pcdet.evaluate``: recall at ADD-S < 0.1 d, precision (share of detections within
-ADD-S 0.1 d of a ground-truth instance), and the median seconds per frame; per object and overall.
+not in the library; ``pcdet synth``'s default sensor model and mesh error (``--sensor``, ``--mesh-error``).
+Every pipeline searches all five models and is told nothing. Scores, from ``pcdet.evaluate``: recall at ADD-S
+< 0.1 d, precision (share of detections within ADD-S 0.1 d of a ground-truth instance), and the median seconds
+per frame; per object and overall.
 
 Run:  python scripts/bench_thirdparty.py [--scenes 20] [--seed 2026] [--pipelines default,crowded+ransac]
-          [--sensor structured_light] [--workdir DIR]
+          [--sensor structured_light_band] [--mesh-error 1.2] [--workdir DIR]
 With ``--workdir DIR`` the meshes are kept in DIR/meshes and the scenes in DIR/suite (a BOP dataset, for
 ``pcdet run``, ``pcdet eval`` and ``pcdet diagnose --targets none --metric adds``); a later run with the same
 DIR reuses the scenes.
@@ -84,7 +85,9 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", type=int, default=20)
     ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--sensor", default="structured_light")
+    ap.add_argument("--sensor", default=SynthConfig.sensor, help="pcdet synth's sensor model")
+    ap.add_argument("--mesh-error", type=float, default=SynthConfig.mesh_error * 1000,
+                    help="mm RMS: objects rendered from bent copies of their meshes, as pcdet synth --mesh-error")
     ap.add_argument("--pipelines", default="default,crowded+ransac",
                     help="comma-separated presets (names, a+b layered, or TOML paths)")
     ap.add_argument("--workdir", type=Path, default=None,
@@ -97,9 +100,9 @@ def main():
         meshes = third_party_models(work / "meshes")
         synthesize(ModelLibrary.from_folder(meshes), suite,
                    SynthConfig(scenes=args.scenes, objects=2, instances=3, distractors=3, seed=args.seed,
-                               sensor=args.sensor))
+                               sensor=args.sensor, mesh_error=args.mesh_error / 1000))
     else:
-        print(f"scenes from {suite} (--scenes, --seed and --sensor do not apply)")
+        print(f"scenes from {suite} (--scenes, --seed, --sensor and --mesh-error do not apply)")
     ds = BopDataset(suite)
     lib = ModelLibrary.from_folder(suite / "models")
     frames = [(img, ds.frame(img)) for img in ds]
