@@ -12,7 +12,8 @@ Three models, all with the axial noise of Nguyen et al. 2012, sigma(z) = 0.0012 
   a pixel one to three pixels inside a foreground edge often reports the depth beyond it (``_edge_band``). On
   LINEMOD's cat frames the real depth lies behind the mesh at its true pose in 22 % of the outline's first pixels,
   13 % of the second and 7 % of the third; with ``structured_light`` the cat's twins have none of that and lose
-  22 % and 9 % of those pixels instead, where the real frames lose 2 % and 1 %.
+  22 % and 9 % of those pixels instead, where the real frames lose 2 % and 1 %. ``pcdet synth``'s default since
+  2026-12 (``structured_light`` before).
 
 Measured on 20 real LINEMOD cat frames (Kinect v1; ``python scripts/sim_to_real.py --frames 20``): the residual
 of a plane fitted to 15 x 15 smooth patches has a median RMS of 1.55 mm at a median 0.87 m, and its
