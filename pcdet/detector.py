@@ -359,6 +359,38 @@ class Detector:
         chosen, _ = select(terms, v.duplicate_weight, v.clutter_weight, v.violation_weight, conflicts=conflicts)
         return [order[i] for i in sorted(chosen)]
 
+    def _select_targets(self, frame: Frame, scene: Scene, order: list[int], hyps: list[Hypothesis],
+                        regs: list[RegistrationResult], vers: list[Verification], targets: dict[int, int],
+                        trace: Trace | None = None) -> list[int]:
+        """With targets: walking ``order`` (verified candidates, best score first), each candidate is kept unless
+        a kept one claims more than ``verify.conflict_overlap`` of its pixels (``resolve_conflicts``), and each
+        object keeps its first ``targets[obj_id]``. When that leaves an object short of the instances it has
+        candidates for (a better-scoring pose of another object took their pixels: a bracket laid onto a step
+        block, scoring above the step block's true pose) and selection is global, the walk is redone with the set
+        that best explains the scene (``_select_global``) first, so that the object explaining the spot keeps it
+        and the other takes its next pose elsewhere, if any. Returns the kept candidates, best score first."""
+        v = self.config.verify
+        supports = [x.support for x in vers]
+        obj = [self.library[h.model_index].obj_id for h in hyps]
+
+        def take(walk: list[int]) -> list[int]:
+            left, chosen = dict(targets), []
+            for j in resolve_conflicts(walk, supports, v.conflict_overlap, frame.depth.size):
+                if left.get(obj[j], 0) > 0:
+                    chosen.append(j)
+                    left[obj[j]] -= 1
+            return chosen
+
+        chosen = take(order)
+        has = {o: sum(obj[j] == o for j in order) for o in targets}
+        got = {o: sum(obj[j] == o for j in chosen) for o in targets}
+        if v.selection != "global" or all(got[o] >= min(n, has[o]) for o, n in targets.items()):
+            return chosen
+        first = self._select_global(scene, order, hyps, regs, vers, trace)
+        taken = set(first)
+        rank = {j: n for n, j in enumerate(order)}
+        return sorted(take(first + [j for j in order if j not in taken]), key=rank.get)  # best score first
+
     def _one_size_per_spot(self, frame: Frame, order: list[int], hyps: list[Hypothesis],
                            regs: list[RegistrationResult], vers: list[Verification]) -> list[int]:
         """``order`` (indices of verified candidates) without the look-alikes beaten on their spot: where two
@@ -490,20 +522,13 @@ class Detector:
             else:
                 order = [j for j in order if vers[j].n_supported > 0]
             order = self._one_size_per_spot(frame, order, hyps, regs, vers)
-            if targets is None and cfg.verify.selection == "global":
+            if targets is not None:
+                kept = self._select_targets(frame, scene, order, hyps, regs, vers, targets, trace)
+            elif cfg.verify.selection == "global":
                 kept = self._select_global(scene, order, hyps, regs, vers, trace)
             else:
                 kept = resolve_conflicts(order, [v.support for v in vers], cfg.verify.conflict_overlap,
                                          frame.depth.size)
-            if targets is not None:
-                left = dict(targets)
-                chosen = []
-                for j in kept:
-                    oid = self.library[hyps[j].model_index].obj_id
-                    if left.get(oid, 0) > 0:
-                        chosen.append(j)
-                        left[oid] -= 1
-                kept = chosen
         if trace is not None:
             trace.registrations, trace.verifications, trace.accepted, trace.kept = regs, vers, order, kept
         dets = [self._detection(frame, hyps[j].model_index, regs[j], vers[j], hyps[j].n_inliers, hyps[j].group)
