@@ -360,7 +360,7 @@ class Detector:
         return [order[i] for i in sorted(chosen)]
 
     def _select_targets(self, frame: Frame, scene: Scene, order: list[int], hyps: list[Hypothesis],
-                        regs: list[RegistrationResult], vers: list[Verification], targets: dict[int, int],
+                        regs: list[RegistrationResult], vers: list[Verification], *, targets: dict[int, int],
                         trace: Trace | None = None) -> list[int]:
         """With targets: walking ``order`` (verified candidates, best score first), each candidate is kept unless
         a kept one claims more than ``verify.conflict_overlap`` of its pixels (``resolve_conflicts``), and each
@@ -523,7 +523,7 @@ class Detector:
                 order = [j for j in order if vers[j].n_supported > 0]
             order = self._one_size_per_spot(frame, order, hyps, regs, vers)
             if targets is not None:
-                kept = self._select_targets(frame, scene, order, hyps, regs, vers, targets, trace)
+                kept = self._select_targets(frame, scene, order, hyps, regs, vers, targets=targets, trace=trace)
             elif cfg.verify.selection == "global":
                 kept = self._select_global(scene, order, hyps, regs, vers, trace)
             else:
