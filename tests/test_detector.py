@@ -228,12 +228,13 @@ def test_with_targets_an_object_keeps_its_spot_from_a_better_scoring_pose_of_ano
 
     ds = BopDataset(synthesize(library, tmp_path / "suite", SynthConfig(scenes=5, objects=4, seed=2026)))
     img = ds.images[4]
-    det, trace = Detector(library), Trace()
-    res = det.detect(ds.frame(img), ds.targets(img), trace=trace)
+    det, trace, frame = Detector(library), Trace(), ds.frame(img)
+    res = det.detect(frame, ds.targets(img), trace=trace)
     step = library.by_id(5)
     T_gt = next(g["T_cam_model"] for g in ds.gt(img) if g["obj_id"] == 5)
     assert any(d.obj_id == 5 and add(d.T_cam_model, T_gt, step.points) < 0.1 * step.diameter
                for d in res.detections)
     # the situation: by score alone, the step block's candidates all lose their pixels to better-scoring poses
-    walk = resolve_conflicts(trace.accepted, [v.support for v in trace.verifications], 0.3, ds.frame(img).depth.size)
+    walk = resolve_conflicts(trace.accepted, [v.support for v in trace.verifications],
+                             det.config.verify.conflict_overlap, frame.depth.size)
     assert not any(library[trace.hypotheses[trace.refined[j]].model_index].obj_id == 5 for j in walk)
