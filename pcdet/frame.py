@@ -117,7 +117,7 @@ class Frame:
         if camera is None and cd.shape is not None:
             camera = _fit_organized_camera(pts, cd.shape, path)
         elif camera is None:
-            camera = _virtual_camera(pts[finite])
+            camera = _virtual_camera(pts[finite], path)
         depth = _zbuffer(pts[finite], camera)
         rgb = None
         if cd.colors is not None and cd.shape is not None and (camera.height, camera.width) == cd.shape:
@@ -154,11 +154,17 @@ def _fit_organized_camera(pts: np.ndarray, shape: tuple[int, int], path) -> Came
     return Camera(float(fx), float(fy), float(cx), float(cy), w, h)
 
 
-def _virtual_camera(pts: np.ndarray, max_size: int = 1280) -> Camera:
+def _virtual_camera(pts: np.ndarray, path, max_size: int = 1280) -> Camera:
+    """A pinhole camera at the origin looking down +z that sees every point of ``pts`` (N, 3) (all with z > 0),
+    its pixel pitch about their spacing and its image at most ``max_size`` pixels wide; ``InputError`` naming
+    ``path`` when the points' directions x / z, y / z are not finite numbers."""
     from scipy.spatial import cKDTree
 
-    a = pts[:, 0] / pts[:, 2]
-    b = pts[:, 1] / pts[:, 2]
+    with np.errstate(over="ignore", invalid="ignore"):
+        a = pts[:, 0] / pts[:, 2]
+        b = pts[:, 1] / pts[:, 2]
+    if not (np.isfinite(a).all() and np.isfinite(b).all() and np.isfinite(np.ptp(a)) and np.isfinite(np.ptp(b))):
+        raise InputError("point cloud coordinates out of range (x / z or y / z is not a finite number)", path)
     sample = pts[:: max(1, len(pts) // 2000)]
     spacing = float(np.median(cKDTree(pts).query(sample, k=2)[0][:, 1]))
     f = float(np.median(pts[:, 2])) / max(spacing, 1e-6)

@@ -87,6 +87,10 @@ def test_bad_inputs_one_clear_line(scene):
         _cli("synth", "--models", MODELS, "--out", scene / "syn", "--sensor", "lidar"))
     np.savetxt(scene / "nan.xyz", np.full((5, 3), np.nan))
     assert "nan.xyz: point cloud holds no finite point" in _error_line(_cli(*base, "--cloud", scene / "nan.xyz"))
+    far = np.ones((50, 3))
+    far[0] = [1e300, 0, 1e-300]  # finite, but x / z is not
+    np.savetxt(scene / "far.xyz", far)
+    assert "far.xyz: point cloud coordinates out of range" in _error_line(_cli(*base, "--cloud", scene / "far.xyz"))
 
 
 def test_detect_takes_a_whole_bop_scene_camera_json(synth_small, scene):

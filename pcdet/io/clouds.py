@@ -27,31 +27,69 @@ class CloudData:
     shape: tuple[int, int] | None = None
 
 
-def _pcd_shape(path: Path) -> tuple[int, int] | None:
-    width = height = None
+def _pcd_header(path: Path) -> tuple[dict[str, list[str]], int]:
+    """The header fields of a PCD file (``{"WIDTH": ["640"], ...}``, up to ``DATA``) and the byte offset where
+    its data starts."""
+    fields: dict[str, list[str]] = {}
     with open(path, "rb") as f:
         for _ in range(20):
             line = f.readline().decode("ascii", "replace").split()
-            if not line:
-                continue
-            if line[0] == "WIDTH":
-                width = int(line[1])
-            elif line[0] == "HEIGHT":
-                height = int(line[1])
-            elif line[0] == "DATA":
-                break
+            if line and not line[0].startswith("#"):
+                fields[line[0].upper()] = line[1:]
+                if line[0].upper() == "DATA":
+                    break
+        return fields, f.tell()
+
+
+def _pcd_shape(path: Path) -> tuple[int, int] | None:
+    fields, _ = _pcd_header(path)
+    try:
+        width, height = int(fields["WIDTH"][0]), int(fields["HEIGHT"][0])
+    except (KeyError, IndexError, ValueError):
+        return None
     if width and height and height > 1:
         return height, width
     return None
 
 
-def _ply_header(path) -> list[bytes]:
-    """The header lines of a PLY file (up to ``end_header``); ``InputError`` when the file is not PLY."""
+def check_pcd_complete(path) -> None:
+    """``InputError`` when a PCD file holds fewer points than its header's POINTS (a copy cut short): fewer data
+    lines (ascii), fewer bytes than POINTS x the point size (binary). open3d's reader returns such a file's
+    missing points undefined or none at all. Compressed data is left to the reader."""
+    path = Path(path)
+    fields, start = _pcd_header(path)
+    try:
+        n = int(fields["POINTS"][0])
+        kind = fields["DATA"][0].lower()
+        size = sum(int(s) * int(c) for s, c in zip(fields["SIZE"], fields.get("COUNT", ["1"] * len(fields["SIZE"]))))
+    except (KeyError, IndexError, ValueError):
+        return  # a header the reader will refuse or describe itself
+    if kind == "ascii":
+        have = sum(1 for ln in path.read_bytes()[start:].splitlines() if ln.strip())
+        if have < n:
+            raise InputError(f"PCD file is truncated: its header declares {n} points (one line each); the file "
+                             f"holds {have} lines after the header", path)
+    elif kind == "binary" and path.stat().st_size - start < n * size:
+        raise InputError(f"PCD file is truncated: its header declares {n} points of {size} bytes; the file holds "
+                         f"{path.stat().st_size - start} bytes after the header", path)
+
+
+def _ply_head(path) -> tuple[list[bytes], int | None]:
+    """The header lines of a PLY file (up to ``end_header``) and the byte offset where its data starts (None
+    without an ``end_header`` line); ``InputError`` when the file is not PLY."""
     with open(path, "rb") as f:
         head = f.read(65536)
     if not head.startswith(b"ply"):
         raise InputError("not a PLY file (it does not start with 'ply')", path)
-    return head.split(b"end_header")[0].splitlines()
+    end = head.find(b"end_header")
+    if end < 0:
+        return head.splitlines(), None
+    return head[:end].splitlines(), head.find(b"\n", end) + 1 or len(head)
+
+
+def _ply_header(path) -> list[bytes]:
+    """The header lines of a PLY file (up to ``end_header``); ``InputError`` when the file is not PLY."""
+    return _ply_head(path)[0]
 
 
 def ply_elements(path) -> dict[str, int]:
@@ -62,6 +100,46 @@ def ply_elements(path) -> dict[str, int]:
         if len(w) == 3 and w[0] == b"element" and w[2].isdigit():
             out[w[1].decode("ascii", "replace")] = int(w[2])
     return out
+
+
+_PLY_SIZES = {b"char": 1, b"uchar": 1, b"int8": 1, b"uint8": 1, b"short": 2, b"ushort": 2, b"int16": 2,
+              b"uint16": 2, b"int": 4, b"uint": 4, b"int32": 4, b"uint32": 4, b"float": 4, b"float32": 4,
+              b"double": 8, b"float64": 8}
+
+
+def check_ply_complete(path) -> None:
+    """``InputError`` when a PLY file holds less data than its header declares (a copy cut short): a binary file
+    smaller than its elements need (each list at least its count), an ASCII file with fewer data lines than
+    elements. open3d's reader returns such a file's missing points undefined instead of failing."""
+    path = Path(path)
+    lines, start = _ply_head(path)
+    if start is None:
+        raise InputError("PLY header has no end_header line", path)
+    fmt, elements = b"", []  # [name, count, bytes of fixed properties, bytes of list counts]
+    for ln in lines:
+        w = ln.split()
+        if len(w) >= 2 and w[0] == b"format":
+            fmt = w[1]
+        elif len(w) == 3 and w[0] == b"element" and w[2].isdigit():
+            elements.append([w[1].decode("ascii", "replace"), int(w[2]), 0, 0])
+        elif len(w) >= 3 and w[0] == b"property" and elements:
+            if w[1] == b"list" and len(w) >= 5:
+                elements[-1][3] += _PLY_SIZES.get(w[2], 1)
+            else:
+                elements[-1][2] += _PLY_SIZES.get(w[1], 0)
+    declared = ", ".join(f"{n} '{name}'" for name, n, _, _ in elements) + " elements"
+    if fmt.startswith(b"binary"):
+        need = sum(n * (fixed + lists) for _, n, fixed, lists in elements)
+        have = path.stat().st_size - start
+        if have < need:
+            raise InputError(f"PLY file is truncated: its header declares {declared} ({need} bytes at least); "
+                             f"the file holds {have} bytes after the header", path)
+    elif fmt == b"ascii":
+        need = sum(n for _, n, _, _ in elements)
+        have = sum(1 for ln in path.read_bytes()[start:].splitlines() if ln.strip())
+        if have < need:
+            raise InputError(f"PLY file is truncated: its header declares {declared} (one line each); the file "
+                             f"holds {have} lines after the header", path)
 
 
 def _open3d_reads_ply(path: Path) -> bool:
@@ -159,6 +237,10 @@ def read_cloud(path, keep_invalid: bool = False) -> CloudData:
         nrm = a[:, 3:6] if a.shape[1] >= 6 else None
         col = None
     else:
+        if suffix == ".ply":
+            check_ply_complete(path)
+        elif suffix == ".pcd":
+            check_pcd_complete(path)
         if suffix == ".ply" and not _open3d_reads_ply(path):
             # open3d's reader refuses valid PLY headers it does not know (Cyberware range scans carry obj_info
             # lines and a range_grid element); trimesh reads any PLY

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from .clouds import ply_elements, read_cloud
+from .clouds import check_ply_complete, ply_elements, read_cloud
 
 MESH_SUFFIXES = {".ply", ".obj", ".stl", ".off", ".glb", ".gltf"}
 CLOUD_ONLY_SUFFIXES = {".pcd", ".xyz", ".xyzn", ".pts"}
@@ -64,6 +64,8 @@ def _read_geometry(path: Path):
     import trimesh
 
     suffix = path.suffix.lower()
+    if suffix == ".ply":
+        check_ply_complete(path)
     if suffix in CLOUD_ONLY_SUFFIXES or (suffix == ".ply" and not ply_elements(path).get("face", 0)):
         cd = read_cloud(path)  # a scanned cloud: the cloud reader is faster
         return cd.points, None, cd.normals, cd.colors
