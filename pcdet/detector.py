@@ -85,8 +85,9 @@ class DetectionResult:
 class Trace:
     """What one ``detect`` call went through, for diagnosis (``Detector.detect(..., trace=Trace())`` fills it):
     the scene; per grouped model's index (a look-alike has no entry: it uses its representative's, ``family_of``) the
-    candidate table (all scene keypoints) and the scene keypoints on the model's grid (``grid``: indices into the
-    scene's keypoints, before ``grouping.max_keypoints``); every raw hypothesis
+    candidate table (all scene keypoints), the scene keypoints on the model's grid (``grid``: indices into the
+    scene's keypoints, before ``grouping.max_keypoints``) and those it grouped (``grouped``: the grid's keypoints
+    with a candidate, within ``grouping.max_keypoints``); every raw hypothesis
     and the quick first-look verification of each; which got the coarse ICP and which were refined (indices
     into ``hypotheses``), their ICP results and verifications; the indices into ``refined`` that passed the
     per-pose checks, in score order, and those finally kept. With global selection, ``selection`` holds its
@@ -96,6 +97,7 @@ class Trace:
     scene: Scene | None = None
     candidates: dict = field(default_factory=dict)
     grid: dict = field(default_factory=dict)
+    grouped: dict = field(default_factory=dict)
     hypotheses: list = field(default_factory=list)
     first_look: list = field(default_factory=list)
     coarse: list = field(default_factory=list)
@@ -308,6 +310,8 @@ class Detector:
                     has = rows.nearest_rows(cap)
                 if not has.all():  # keypoints left without a candidate (by colour) take no part in grouping
                     view, rows = view.subset(has), Candidates(rows.model[has], rows.distance[has])
+                if trace is not None:
+                    trace.grouped[pm.index] = view.index
                 return self.grouper.group(view, pm, rows, np.random.default_rng(seeds[pm.index]),
                                           workers=max(1, self.workers // len(models)))
 

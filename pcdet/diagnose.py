@@ -1,13 +1,14 @@
 """Where each ground-truth instance of a BOP dataset is found or lost, stage by stage.
 
-For every instance: how many scene keypoints lie on it (within 1.5 voxel of the model placed at the true pose)
-and how many of those have a correct candidate match (a model keypoint that the true pose puts within the
-grouping's inlier distance); the error of the best raw hypothesis and of the best refined one (ADD or ADD-S,
+For every instance: how many scene keypoints lie on it (within 1.5 voxel of the model placed at the true pose),
+how many of those have a correct candidate match (a model keypoint that the true pose puts within the
+grouping's inlier distance) and how many of the matched ones took part in grouping (``grouping.max_keypoints``
+bounds the keypoints a model groups); the error of the best raw hypothesis and of the best refined one (ADD or ADD-S,
 in diameters); whether the best raw one was refined; where verification ranked the best refined one among that
 model's refined poses; and what was kept instead, with its score terms. Each miss is attributed to one stage:
 
 - generation: no raw hypothesis and no refined pose within the threshold (``keypoints`` when fewer than 3
-  keypoints on the instance have a correct match: grouping had nothing to work with);
+  keypoints on the instance with a correct match took part in grouping: it had nothing to work with);
 - first look: a raw hypothesis was within the threshold but did not reach ICP (quick verification or the
   per-model budget dropped it);
 - refinement: a raw hypothesis within the threshold reached ICP and left it outside;
@@ -39,6 +40,7 @@ class InstanceDiagnosis:
     scene_keypoints: int
     keypoints_on: int
     keypoints_matched: int
+    keypoints_grouped: int
     raw_hypotheses: int
     best_raw: float
     best_raw_refined: bool
@@ -93,14 +95,16 @@ def diagnose_frame(det: Detector, frame, gts: list[dict], targets: dict | None, 
             on = np.isfinite(d)
             if rep in trace.grid:  # only the keypoints on the grid it grouped (the scene describes a union of grids)
                 on &= np.isin(np.arange(len(kp)), trace.grid[rep])
-        matched = 0
+        matched = grouped = 0
         cands = trace.candidates.get(rep)
         if cands is not None and on.any():
             c = cands.model[on]
             T_rep = T if rep == mi else transfer(T, det.models[mi].reference, det.models[rep].reference)
             posed = transform(T_rep, det.library[rep].kp_points[np.maximum(c, 0).reshape(-1)]).reshape(*c.shape, 3)
             ok = (c >= 0) & (np.linalg.norm(posed - kp[on][:, None], axis=2) < cfg.grouping.inlier_distance)
-            matched = int(ok.any(axis=1).sum())
+            has = ok.any(axis=1)
+            matched = int(has.sum())
+            grouped = int(np.isin(np.flatnonzero(on)[has], trace.grouped.get(rep, [])).sum())
         raw = [(j, err(h.T_scene_model)) for j, h in enumerate(trace.hypotheses) if h.model_index == mi]
         best_raw_j, best_raw = min(raw, key=lambda x: x[1]) if raw else (-1, -1.0)
         refined = [(r, err(trace.registrations[r].T_target_source)) for r, j in enumerate(trace.refined)
@@ -121,9 +125,10 @@ def diagnose_frame(det: Detector, frame, gts: list[dict], targets: dict | None, 
         elif 0 <= best_raw < threshold:
             stage = "refinement" if best_raw_j in trace.refined else "first look"
         else:
-            stage = "generation" if matched >= 3 else "keypoints"
+            stage = "generation" if grouped >= 3 else "keypoints"
         out.append(InstanceDiagnosis(
-            scene_id, im_id, g["obj_id"], g.get("visib_fract"), int(len(kp)), int(on.sum()), matched, len(raw),
+            scene_id, im_id, g["obj_id"], g.get("visib_fract"), int(len(kp)), int(on.sum()), matched, grouped,
+            len(raw),
             round(float(best_raw), 3), best_raw_j in trace.refined, round(float(best_refined), 3), rank,
             round(float(kept_err), 3),
             round(float(trace.verifications[first_kept].score), 3) if first_kept >= 0 else -1.0,

@@ -20,14 +20,14 @@ def test_every_instance_gets_one_stage_consistent_with_its_errors(synth_small, t
     """The 9 instances of the small synthetic suite (3 scenes x 3 objects): one row each; a 'found' row's kept
     pose is within 0.1 d (ADD) and no better than the best refined one; a miss's kept pose is not; 'verification'
     means a refined pose within 0.1 d existed; 'generation' / 'keypoints' mean no raw or refined pose did; and
-    correct matches never outnumber the keypoints on the instance."""
+    the keypoints grouped never outnumber those correctly matched, nor those the keypoints on the instance."""
     text, doc = _diagnose(synth_small, tmp_path / "d.json")
     rows = doc["instances"]
     assert len(rows) == 9 and sum(doc["stages"].values()) == 9
     assert doc["stages"]["found"] >= 7  # the suite's own recall with targets is 8-9 of 9
     for r in rows:
         assert r["stage"] in STAGES
-        assert 0 <= r["keypoints_matched"] <= r["keypoints_on"] <= r["scene_keypoints"]
+        assert 0 <= r["keypoints_grouped"] <= r["keypoints_matched"] <= r["keypoints_on"] <= r["scene_keypoints"]
         if r["stage"] == "found":
             assert 0 <= r["kept_error"] < 0.1 and r["best_refined"] <= r["kept_error"] + 1e-9
         else:
@@ -47,6 +47,23 @@ def test_a_crippled_matcher_is_blamed_on_generation(synth_small, tmp_path):
     missed = [r for r in doc["instances"] if r["stage"] != "found"]
     assert missed, "the crippled pipeline should miss some instances"
     assert all(r["stage"] in ("generation", "keypoints", "first look") for r in missed)
+
+
+def test_the_grouping_bound_shows_in_the_grouped_keypoints(synth_small, tmp_path):
+    """``keypoints_grouped`` counts the correctly matched keypoints that took part in grouping: with every scene
+    keypoint grouped (the small synthetic scenes have fewer than ``grouping.max_keypoints``) it equals
+    ``keypoints_matched``; bounded to 40 keypoints a model, it falls below it for some instance, and an instance
+    left with fewer than 3 grouped is put down to ``keypoints`` when missed."""
+    _, full = _diagnose(synth_small, tmp_path / "a.json", "--limit", "1")
+    assert all(r["keypoints_grouped"] == r["keypoints_matched"] for r in full["instances"])
+    (tmp_path / "bound.toml").write_text("[grouping]\nmax_keypoints = 40\n")
+    _, bound = _diagnose(synth_small, tmp_path / "b.json", "--limit", "1", "--pipeline", str(tmp_path / "bound.toml"))
+    rows = bound["instances"]
+    assert any(r["keypoints_grouped"] < r["keypoints_matched"] for r in rows)
+    assert all(r["keypoints_grouped"] <= 40 for r in rows)
+    for r in rows:
+        if r["stage"] in ("generation", "keypoints"):
+            assert (r["stage"] == "keypoints") == (r["keypoints_grouped"] < 3)
 
 
 def test_depth_only_drops_the_colour_images(synth_small, tmp_path, monkeypatch):
