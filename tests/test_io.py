@@ -123,55 +123,40 @@ def test_every_stanford_range_scan_reads():
         assert 0.1 < np.ptp(pts, axis=0).max() < 0.3, p.name
 
 
-def test_a_truncated_ply_is_refused_not_read_as_garbage(tmp_path):
-    """A PLY cut short (a copy that did not finish) is refused with the counts its header promises: binary and
-    ASCII clouds of 1000 points cut in half, and a binary mesh cut within its vertices (cut in its face list,
-    trimesh's reader refuses it). open3d's reader would return all 1000 points with the missing ones undefined.
-    The same clouds whole read back their 1000 points."""
+@pytest.mark.parametrize("suffix, declares", [("ply", "1000 'vertex' elements"), ("pcd", "1000 points")])
+def test_a_truncated_cloud_is_refused_not_read_as_garbage(tmp_path, suffix, declares):
+    """A PLY or PCD cut short (a copy that did not finish) is refused with the counts its header promises: binary
+    and ASCII clouds of 1000 points cut in half. open3d's reader would return the missing points undefined (or,
+    for a binary PCD, no points at all). The same clouds whole read back their 1000 points."""
     import open3d as o3d
-    import trimesh
 
     pts = np.random.default_rng(3).random((1000, 3)) + [0, 0, 1]
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
     for ascii in (False, True):
-        whole = tmp_path / f"whole_{ascii}.ply"
+        whole = tmp_path / f"whole_{ascii}.{suffix}"
         o3d.io.write_point_cloud(str(whole), pc, write_ascii=ascii)
         assert np.allclose(read_cloud(whole).points, pts, atol=1e-5)
         data = whole.read_bytes()
-        cut = tmp_path / f"cut_{ascii}.ply"
+        cut = tmp_path / f"cut_{ascii}.{suffix}"
         cut.write_bytes(data[: len(data) // 2])
-        with pytest.raises(InputError, match=rf"cut_{ascii}\.ply: PLY file is truncated: its header declares "
-                                             r"1000 'vertex' elements"):
+        with pytest.raises(InputError, match=rf"cut_{ascii}\.{suffix}: {suffix.upper()} file is truncated: its "
+                                             rf"header declares {declares}"):
             read_cloud(cut)
-    mesh = trimesh.creation.icosphere(subdivisions=3)
-    data = mesh.export(file_type="ply")  # binary, with a face list
+
+
+def test_a_truncated_mesh_ply_is_refused(tmp_path):
+    """A binary mesh PLY cut within its vertices is refused with its header's counts; cut within its face list
+    (past the least a list can take, its count), trimesh's reader refuses it. Either way one error names it."""
+    import trimesh
+
+    data = trimesh.creation.icosphere(subdivisions=3).export(file_type="ply")  # binary, with a face list
     cut = tmp_path / "cutmesh.ply"
-    cut.write_bytes(data[: len(data) // 4])  # within its vertices
+    cut.write_bytes(data[: len(data) // 4])
     with pytest.raises(InputError, match=r"cutmesh\.ply: PLY file is truncated"):
         load_geometry(cut)
-    # cut within the face list, past the least a list can take (its count): trimesh's reader refuses it
     cut.write_bytes(data[: len(data) - 200])
     with pytest.raises(InputError, match=r"cutmesh\.ply: cannot read model"):
         load_geometry(cut)
-
-
-def test_a_truncated_pcd_is_refused(tmp_path):
-    """A PCD cut short is refused with the point count its header promises, ascii and binary (open3d's reader
-    returns the missing points undefined, or no points at all); whole, both read back their 1000 points."""
-    import open3d as o3d
-
-    pts = np.random.default_rng(4).random((1000, 3)) + [0, 0, 1]
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
-    for ascii in (False, True):
-        whole = tmp_path / f"whole_{ascii}.pcd"
-        o3d.io.write_point_cloud(str(whole), pc, write_ascii=ascii)
-        assert np.allclose(read_cloud(whole).points, pts, atol=1e-5)
-        data = whole.read_bytes()
-        cut = tmp_path / f"cut_{ascii}.pcd"
-        cut.write_bytes(data[: len(data) // 2])
-        with pytest.raises(InputError, match=rf"cut_{ascii}\.pcd: PCD file is truncated: its header declares "
-                                             r"1000 points"):
-            read_cloud(cut)
 
 
 def test_a_file_that_is_not_ply_is_named(tmp_path):
