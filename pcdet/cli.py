@@ -270,6 +270,7 @@ def odometry(recording: Path = typer.Argument(..., help="Recording folder: BOP, 
              ):
     """Estimate the camera trajectory of a recording (T_world_cam per frame, the first camera as the world)."""
     from .datasets import open_recording
+    from .errors import InputError
     from .odometry import OdometryConfig
     from .odometry_run import errors_against, run_odometry, write_odometry
 
@@ -295,7 +296,11 @@ def odometry(recording: Path = typer.Argument(..., help="Recording folder: BOP, 
     files = write_odometry(out, run, cfg)
     console.print(f"{len(run.poses)} frame(s), odometry {run.frames_per_second:.1f} frames/s, {len(run.failed)} "
                   f"skipped -> {', '.join(str(f) for f in files)}")
-    truth = rec.camera_poses()
+    try:
+        truth = rec.camera_poses()
+    except InputError as e:  # the trajectory stands without them: say why there are no errors
+        console.print(f"[yellow]warning:[/] no ATE / RPE: {escape(str(e))}", highlight=False, soft_wrap=True)
+        truth = None
     if truth:
         t = Table(title="against the recording's camera poses")
         for c in ("scene", "frames", "ATE (mm)", "RPE (mm)", "RPE (deg)"):

@@ -99,7 +99,8 @@ def test_odometry_command_on_real_kinect_frames(tmp_path):
     """``pcdet odometry`` on every second frame of the first 80 of the 7-Scenes clip (a copy, with one frame
     truncated): one TUM line per readable frame in frame order, the first the identity, the bad frame reported
     and skipped, the config beside it, and ATE printed against the KinectFusion poses (measured 7 mm without
-    the bad frame; the bar is 30 mm, against 147 mm for a camera that never moves)."""
+    the bad frame; the bar is 30 mm, against 147 mm for a camera that never moves). With one ground-truth pose file
+    malformed, the trajectory is the same and a warning names the file instead of the errors."""
     import shutil
 
     from typer.testing import CliRunner
@@ -132,6 +133,13 @@ def test_odometry_command_on_real_kinect_frames(tmp_path):
     refs = [r for r in rec if r.im_id != 12]
     gt = [np.linalg.inv(truth[refs[0]]) @ truth[r] for r in refs]
     assert ate_rmse(poses, gt) < 0.03 < ate_rmse(identity_baseline(gt), gt)
+    # a malformed ground-truth pose costs the errors, not the run: the trajectory is written, a warning names it
+    (rec_dir / "frame-000030.pose.txt").write_text("1 2 3\n")
+    res = CliRunner().invoke(app, ["odometry", str(rec_dir), "--out", str(tmp_path / "odo2")])
+    assert res.exit_code == 0, res.output
+    assert "warning:" in res.output and "frame-000030.pose.txt: expected a 4x4 matrix" in res.output
+    assert "ATE (mm)" not in res.output
+    assert read_tum(tmp_path / "odo2" / "trajectory.txt")[0] == stamps
 
 
 def test_depth_noise_weights_on_real_kinect_frames():
