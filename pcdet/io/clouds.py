@@ -87,19 +87,27 @@ def _ply_head(path) -> tuple[list[bytes], int | None]:
     return head[:end].splitlines(), head.find(b"\n", end) + 1 or len(head)
 
 
-def _ply_header(path) -> list[bytes]:
-    """The header lines of a PLY file (up to ``end_header``); ``InputError`` when the file is not PLY."""
-    return _ply_head(path)[0]
+def _ply_layout(lines: list[bytes]) -> tuple[bytes, list[list]]:
+    """The format (``b"ascii"``, ``b"binary_little_endian"``, ...) and the elements ``[name, count, bytes of its
+    fixed-size properties, bytes of its list counts]``, in file order, of PLY header ``lines``."""
+    fmt, elements = b"", []
+    for ln in lines:
+        w = ln.split()
+        if len(w) >= 2 and w[0] == b"format":
+            fmt = w[1]
+        elif len(w) == 3 and w[0] == b"element" and w[2].isdigit():
+            elements.append([w[1].decode("ascii", "replace"), int(w[2]), 0, 0])
+        elif len(w) >= 3 and w[0] == b"property" and elements:
+            if w[1] == b"list" and len(w) >= 5:
+                elements[-1][3] += _PLY_SIZES.get(w[2], 1)
+            else:
+                elements[-1][2] += _PLY_SIZES.get(w[1], 0)
+    return fmt, elements
 
 
 def ply_elements(path) -> dict[str, int]:
     """``{element name: count}`` from a PLY header, in file order; ``InputError`` when the file is not PLY."""
-    out = {}
-    for ln in _ply_header(path):
-        w = ln.split()
-        if len(w) == 3 and w[0] == b"element" and w[2].isdigit():
-            out[w[1].decode("ascii", "replace")] = int(w[2])
-    return out
+    return {name: n for name, n, _, _ in _ply_layout(_ply_head(path)[0])[1]}
 
 
 _PLY_SIZES = {b"char": 1, b"uchar": 1, b"int8": 1, b"uint8": 1, b"short": 2, b"ushort": 2, b"int16": 2,
@@ -125,18 +133,7 @@ def check_ply_complete(path) -> None:
     lines, start = _ply_head(path)
     if start is None:
         raise InputError("PLY header has no end_header line", path)
-    fmt, elements = b"", []  # [name, count, bytes of fixed properties, bytes of list counts]
-    for ln in lines:
-        w = ln.split()
-        if len(w) >= 2 and w[0] == b"format":
-            fmt = w[1]
-        elif len(w) == 3 and w[0] == b"element" and w[2].isdigit():
-            elements.append([w[1].decode("ascii", "replace"), int(w[2]), 0, 0])
-        elif len(w) >= 3 and w[0] == b"property" and elements:
-            if w[1] == b"list" and len(w) >= 5:
-                elements[-1][3] += _PLY_SIZES.get(w[2], 1)
-            else:
-                elements[-1][2] += _PLY_SIZES.get(w[1], 0)
+    fmt, elements = _ply_layout(lines)
     declared = ", ".join(f"{n} '{name}'" for name, n, _, _ in elements) + " elements"
     if fmt.startswith(b"binary"):
         need = sum(n * (fixed + lists) for _, n, fixed, lists in elements)
@@ -155,8 +152,9 @@ def check_ply_complete(path) -> None:
 def _open3d_reads_ply(path: Path) -> bool:
     """Whether the PLY header is one open3d's reader takes (no obj_info lines, only vertex and face elements);
     ``InputError`` when the file is not PLY at all."""
-    lines = _ply_header(path)
-    return not any(ln.startswith(b"obj_info") for ln in lines) and set(ply_elements(path)) <= {"vertex", "face"}
+    lines = _ply_head(path)[0]
+    names = {name for name, _, _, _ in _ply_layout(lines)[1]}
+    return not any(ln.startswith(b"obj_info") for ln in lines) and names <= {"vertex", "face"}
 
 
 def _ascii_ply_vertices(path: Path) -> np.ndarray | None:

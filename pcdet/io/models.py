@@ -64,11 +64,11 @@ def _read_geometry(path: Path):
     import trimesh
 
     suffix = path.suffix.lower()
+    if suffix in CLOUD_ONLY_SUFFIXES or (suffix == ".ply" and not ply_elements(path).get("face", 0)):
+        cd = read_cloud(path)  # a scanned cloud: the cloud reader is faster (and checks the file is whole)
+        return cd.points, None, cd.normals, cd.colors
     if suffix == ".ply":
         check_ply_complete(path)
-    if suffix in CLOUD_ONLY_SUFFIXES or (suffix == ".ply" and not ply_elements(path).get("face", 0)):
-        cd = read_cloud(path)  # a scanned cloud: the cloud reader is faster
-        return cd.points, None, cd.normals, cd.colors
     try:
         geom = trimesh.load(str(path), process=False)
     except Exception as e:  # trimesh raises many types for unreadable files; report it as the file's problem
