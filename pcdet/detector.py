@@ -28,7 +28,7 @@ from .grouping.common import distinct_poses, distinct_surfaces
 from .keypoints import select_keypoints, voxel_keypoint_levels
 from .library import ModelLibrary
 from .look_alikes import Family, look_alike_families, transfer
-from .matching import Candidates, LibraryIndex, match_features, match_library
+from .matching import Candidates, LibraryIndex, match_bounded, match_features, match_library
 from .prepared_model import PreparedModel
 from .preprocess import preprocess
 from .refine import RefineConfig, RegistrationResult, icp
@@ -274,6 +274,7 @@ class Detector:
             # large models need no denser grid of scene points than diameter / grid_per_diameter
             return scene.keypoints_at(self.grid_step(pm), min_step=spacing)
 
+        chosen: dict[int, np.ndarray] = {}  # per model: the view's rows it groups, when matching chose them
         with tm("matching"):
             if len(models) > 1 and mc.library_pool > 0 and mc.ratio >= 1 and not mc.mutual:
                 # one search over the library: a model gets candidates only where the scene resembles it
@@ -287,9 +288,13 @@ class Detector:
                     # mutual test every keypoint is, since it asks which scene keypoint is nearest
                     rows = np.arange(len(scene.keypoints)) if mc.mutual else view_of(pm).index
                     colours = None if scene.colours is None else scene.colours[rows]
-                    found = match_features(scene.descriptors[rows], pm.model.features, mc,
-                                           model_tree=pm.descriptor_tree, workers=self.workers,
-                                           scene_colours=colours, model_colours=pm.colours)
+                    kw = dict(model_tree=pm.descriptor_tree, workers=self.workers, scene_colours=colours,
+                              model_colours=pm.colours)
+                    if mc.mutual:
+                        found = match_features(scene.descriptors[rows], pm.model.features, mc, **kw)
+                    else:  # the keypoints within grouping.max_keypoints are chosen here (on the view's rows)
+                        found, chosen[pm.index] = match_bounded(scene.descriptors[rows], pm.model.features, mc,
+                                                                cfg.grouping.max_keypoints, **kw)
                     cands[pm.index] = found.placed(rows, len(scene.keypoints))
         if self.grouper.needs_lrfs:
             with tm("lrf"):  # only keypoints with a candidate take part in grouping
@@ -304,10 +309,12 @@ class Detector:
             def group(pm: PreparedModel) -> list[Hypothesis]:
                 view = view_of(pm)
                 rows = cands[pm.index].rows(view.index)
-                has = (rows.model >= 0).any(axis=1)
-                cap = cfg.grouping.max_keypoints
-                if cap and has.sum() > cap:  # a bounded share of a large scene: where it most resembles the model
-                    has = rows.nearest_rows(cap)
+                has = chosen.get(pm.index)
+                if has is None:
+                    has = (rows.model >= 0).any(axis=1)
+                    cap = cfg.grouping.max_keypoints
+                    if cap and has.sum() > cap:  # a bounded share of a large scene: where it most resembles it
+                        has = rows.nearest_rows(cap)
                 if not has.all():  # keypoints left without a candidate (by colour) take no part in grouping
                     view, rows = view.subset(has), Candidates(rows.model[has], rows.distance[has])
                 if trace is not None:

@@ -2,7 +2,7 @@
 import numpy as np
 
 from pcdet.config import MatchingConfig
-from pcdet.matching import Candidates, match_features
+from pcdet.matching import Candidates, match_bounded, match_features
 
 
 def test_k_nearest_includes_the_true_match(rng):
@@ -143,3 +143,27 @@ def test_nearest_rows_keeps_the_keypoints_whose_candidates_are_nearest():
     assert list(np.flatnonzero(c.nearest_rows(2))) == [1, 3]  # means 2.0, 1.5, -, 0.55, 2.0
     assert list(np.flatnonzero(c.nearest_rows(3))) == [0, 1, 3]  # row 0 before row 4 at the same mean
     assert list(np.flatnonzero(c.nearest_rows(10))) == [0, 1, 3, 4]
+
+
+def test_bounded_matching_chooses_on_the_coarse_search_and_matches_the_chosen_again(rng):
+    """``match_bounded`` keeps at most ``keep`` rows. With ``screen_eps`` they are the ``keep`` nearest on the
+    coarser search, and each chosen row's candidates are exactly those the ``eps`` search gives it alone; the
+    others keep the coarse ones. With ``screen_eps = 0`` the choice is ``nearest_rows`` of the ``eps`` search.
+    Uniform 33-D data, where eps = 2 changes many lists (see above)."""
+    model, scene = rng.random((3000, 33)), rng.random((400, 33))
+    fine = MatchingConfig(k=8, eps=0.0, colour_gate=0.0, screen_eps=0.0)
+    full = match_features(scene, model, fine)
+    found, chosen = match_bounded(scene, model, fine, 100)
+    np.testing.assert_array_equal(chosen, full.nearest_rows(100))
+    np.testing.assert_array_equal(found.model, full.model)
+
+    cfg = MatchingConfig(k=8, eps=0.0, colour_gate=0.0, screen_eps=2.0)
+    coarse = match_features(scene, model, MatchingConfig(k=8, eps=2.0, colour_gate=0.0))
+    found, chosen = match_bounded(scene, model, cfg, 100, workers=2)
+    np.testing.assert_array_equal(chosen, coarse.nearest_rows(100))
+    assert chosen.sum() == 100
+    np.testing.assert_array_equal(found.model[chosen], full.model[chosen])
+    np.testing.assert_array_equal(found.model[~chosen], coarse.model[~chosen])
+    assert not np.array_equal(coarse.nearest_rows(100), full.nearest_rows(100))  # the screen reached the choice
+    everything, all_rows = match_bounded(scene, model, cfg, 0)  # no bound: every row, the eps search
+    assert all_rows.all() and np.array_equal(everything.model, full.model)
