@@ -85,7 +85,8 @@ class DetectionResult:
 class Trace:
     """What one ``detect`` call went through, for diagnosis (``Detector.detect(..., trace=Trace())`` fills it):
     the scene; per grouped model's index (a look-alike has no entry: it uses its representative's, ``family_of``) the
-    candidate table (all scene keypoints), the scene keypoints on the model's grid (``grid``: indices into the
+    candidate table (all scene keypoints; the rows a model does not group hold the coarser search's candidates,
+    ``matching.screen_eps``), the scene keypoints on the model's grid (``grid``: indices into the
     scene's keypoints, before ``grouping.max_keypoints``) and those it grouped (``grouped``: the grid's keypoints
     with a candidate, within ``grouping.max_keypoints``); every raw hypothesis
     and the quick first-look verification of each; which got the coarse ICP and which were refined (indices

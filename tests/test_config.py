@@ -50,6 +50,7 @@ def test_dump_roundtrip(tmp_path):
     ("seed = \"x\"\n", "seed = 'x': expected an integer"),
     ("[verify]\nmin_score = true\n", "verify.min_score = True: expected a number"),
     ("grouping = 3\n", "[grouping] must be a table"),
+    ("[matching]\nscreen_eps = -1\n", "MatchingConfig.screen_eps must be >= 0"),
 ])
 def test_bad_presets(tmp_path, text, words):
     p = tmp_path / "bad.toml"
