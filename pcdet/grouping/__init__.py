@@ -57,7 +57,7 @@ class GroupingCommon:
     min_inliers: int = param(5, "distinct scene keypoints a hypothesis needs")
     grid_per_diameter: float = param(12.0, "scene keypoints used for grouping are at least diameter / this apart")
     max_keypoints: int = param(1500, "scene keypoints each model groups at most: those whose candidates are nearest in "
-                                  "FPFH space (0: all)")
+                                  "FPFH space, on the matching.screen_eps search (0: all)")
     look_alike: float = param(0.003, "m; models of one shape at other sizes (each centred on its bounding box in "
                                      "its own frame, their samples this close on average at the smaller one's size, "
                                      "sizes under 1.25 times apart) are grouped once, for the family's middle-sized "
