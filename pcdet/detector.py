@@ -311,11 +311,9 @@ class Detector:
                 view = view_of(pm)
                 rows = cands[pm.index].rows(view.index)
                 has = chosen.get(pm.index)
-                if has is None:
-                    has = (rows.model >= 0).any(axis=1)
+                if has is None:  # mutual or library matching: the bound is applied here, as match_bounded does
                     cap = cfg.grouping.max_keypoints
-                    if cap and has.sum() > cap:  # a bounded share of a large scene: where it most resembles it
-                        has = rows.nearest_rows(cap)
+                    has = rows.nearest_rows(cap) if cap else (rows.model >= 0).any(axis=1)
                 if not has.all():  # keypoints left without a candidate (by colour) take no part in grouping
                     view, rows = view.subset(has), Candidates(rows.model[has], rows.distance[has])
                 if trace is not None:

@@ -86,7 +86,8 @@ class Candidates:
 
     def nearest_rows(self, n: int) -> np.ndarray:
         """(S,) bool: the ``n`` scene keypoints whose candidates are nearest in FPFH space (smallest mean distance
-        over their candidates; ties by keypoint order). Keypoints without a candidate are never among them."""
+        over their candidates; ties by keypoint order). Keypoints without a candidate are never among them, so
+        with ``n`` at least their number this is every keypoint with a candidate."""
         valid = self.model >= 0
         count = valid.sum(axis=1)
         mean = np.where(valid, self.distance, 0.0).sum(axis=1) / np.maximum(count, 1)
@@ -149,8 +150,7 @@ def match_bounded(scene_features: np.ndarray, model_features: np.ndarray, cfg: M
     S = len(scene_features)
     if keep <= 0 or S <= keep or cfg.mutual or cfg.screen_eps <= cfg.eps:
         found = match_features(scene_features, model_features, cfg, **kw)
-        chosen = found.nearest_rows(keep) if 0 < keep < S else (found.model >= 0).any(axis=1)
-        return found, chosen
+        return found, found.nearest_rows(keep) if keep > 0 else (found.model >= 0).any(axis=1)
     screen = match_features(scene_features, model_features, replace(cfg, eps=cfg.screen_eps), **kw)
     chosen = screen.nearest_rows(keep)
     rows = np.flatnonzero(chosen)

@@ -69,9 +69,9 @@ def check_pcd_complete(path) -> None:
         if have < n:
             raise InputError(f"PCD file is truncated: its header declares {n} points (one line each); the file "
                              f"holds {have} lines after the header", path)
-    elif kind == "binary" and path.stat().st_size - start < n * size:
+    elif kind == "binary" and (have := path.stat().st_size - start) < n * size:
         raise InputError(f"PCD file is truncated: its header declares {n} points of {size} bytes; the file holds "
-                         f"{path.stat().st_size - start} bytes after the header", path)
+                         f"{have} bytes after the header", path)
 
 
 def _ply_head(path) -> tuple[list[bytes], int | None]:
