@@ -500,14 +500,16 @@ def diagnose(dataset: Path = typer.Argument(..., help="BOP dataset with ground t
             prog.update(task, advance=1)
     diag = Diagnosis(rows)
     t = Table(title=f"{metric.upper()} in diameters; kp: scene keypoints of the model's grid on the instance / "
-                    "with a correct match / of those, grouped")
-    for c in ("scene", "image", "obj", "visib", "kp", "raw", "best raw", "refined", "best refined", "rank",
+                    "with a correct match / of those, grouped; clusters: the grouped ones per scene cluster (grouped "
+                    "apart)")
+    for c in ("scene", "image", "obj", "visib", "kp", "clusters", "raw", "best raw", "refined", "best refined", "rank",
               "kept", "kept score", "best score", "stage"):
         t.add_column(c, justify="left" if c == "stage" else "right", min_width={"kp": 9, "stage": 12}.get(c))
     for r in rows:
         vis = "-" if r.visib_fract is None else f"{r.visib_fract:.2f}"
         t.add_row(str(r.scene_id), str(r.im_id), str(r.obj_id), vis,
-                  f"{r.keypoints_on}/{r.keypoints_matched}/{r.keypoints_grouped}", str(r.raw_hypotheses),
+                  f"{r.keypoints_on}/{r.keypoints_matched}/{r.keypoints_grouped}",
+                  "+".join(map(str, r.grouped_clusters)) or "-", str(r.raw_hypotheses),
                   f"{r.best_raw:.3f}",
                   "yes" if r.best_raw_refined else "no", f"{r.best_refined:.3f}", str(r.rank), f"{r.kept_error:.3f}",
                   f"{r.kept_score:.3f}", f"{r.best_terms.get('score', -1):.3f}", r.stage)

@@ -12,7 +12,7 @@ from rich.markup import escape
 from .errors import DependencyError, InputError
 
 console = Console(stderr=True)
-out_console = Console(width=None if sys.stdout.isatty() else 120)  # tables stay readable when piped
+out_console = Console(width=None if sys.stdout.isatty() else 200)  # wide tables stay whole when piped
 
 EXPECTED = (InputError, FileNotFoundError, DependencyError)
 

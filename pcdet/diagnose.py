@@ -3,7 +3,8 @@
 For every instance: how many scene keypoints lie on it (within 1.5 voxel of the model placed at the true pose),
 how many of those have a correct candidate match (a model keypoint that the true pose puts within the
 grouping's inlier distance) and how many of the matched ones took part in grouping (``grouping.max_keypoints``
-bounds the keypoints a model groups); the error of the best raw hypothesis and of the best refined one (ADD or ADD-S,
+bounds the keypoints a model groups), and how those fall into the scene's clusters (grouping pairs keypoints
+within one cluster only, so an instance split by a depth jump offers each part alone); the error of the best raw hypothesis and of the best refined one (ADD or ADD-S,
 in diameters); whether the best raw one was refined; where verification ranked the best refined one among that
 model's refined poses; and what was kept instead, with its score terms. Each miss is attributed to one stage:
 
@@ -52,6 +53,7 @@ class InstanceDiagnosis:
     best_terms: dict = field(default_factory=dict)
     stage: str = ""
     seconds: float = 0.0
+    grouped_clusters: list = field(default_factory=list)
 
 
 def _terms(v) -> dict:
@@ -96,6 +98,7 @@ def diagnose_frame(det: Detector, frame, gts: list[dict], targets: dict | None, 
             if rep in trace.grid:  # only the keypoints on the grid it grouped (the scene describes a union of grids)
                 on &= np.isin(np.arange(len(kp)), trace.grid[rep])
         matched = grouped = 0
+        split: list[int] = []
         cands = trace.candidates.get(rep)
         if cands is not None and on.any():
             c = cands.model[on]
@@ -104,7 +107,13 @@ def diagnose_frame(det: Detector, frame, gts: list[dict], targets: dict | None, 
             ok = (c >= 0) & (np.linalg.norm(posed - kp[on][:, None], axis=2) < cfg.grouping.inlier_distance)
             has = ok.any(axis=1)
             matched = int(has.sum())
-            grouped = int(np.isin(np.flatnonzero(on)[has], trace.grouped.get(rep, [])).sum())
+            took = np.flatnonzero(on)[has]
+            took = took[np.isin(took, trace.grouped.get(rep, []))]
+            grouped = len(took)
+            # grouping pairs keypoints within one scene cluster only: an instance split between clusters (a
+            # self-occlusion's depth jump, an occluder in front) offers each part alone
+            labels = scene.labels[scene.keypoints[took]]
+            split = sorted(np.unique(labels, return_counts=True)[1].tolist(), reverse=True)
         raw = [(j, err(h.T_scene_model)) for j, h in enumerate(trace.hypotheses) if h.model_index == mi]
         best_raw_j, best_raw = min(raw, key=lambda x: x[1]) if raw else (-1, -1.0)
         refined = [(r, err(trace.registrations[r].T_target_source)) for r, j in enumerate(trace.refined)
@@ -133,7 +142,7 @@ def diagnose_frame(det: Detector, frame, gts: list[dict], targets: dict | None, 
             round(float(kept_err), 3),
             round(float(trace.verifications[first_kept].score), 3) if first_kept >= 0 else -1.0,
             _terms(trace.verifications[first_kept]) if first_kept >= 0 else {},
-            _terms(trace.verifications[best_r]) if best_r >= 0 else {}, stage, round(seconds, 3)))
+            _terms(trace.verifications[best_r]) if best_r >= 0 else {}, stage, round(seconds, 3), split))
     return out
 
 
