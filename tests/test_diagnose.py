@@ -76,8 +76,8 @@ def test_grouped_keypoints_are_counted_per_scene_cluster(synth_small, tmp_path):
     above the 4 mm voxel, none dropped) the first frame's objects fall apart (measured: 27+9+1+1, 63+1+1 and
     20+2+1+1+1), and the table shows the parts."""
     _, whole = _diagnose(synth_small, tmp_path / "a.json")
-    for r in whole["instances"]:
-        assert r["grouped_clusters"] == [r["keypoints_grouped"]]
+    for r in whole["instances"]:  # one part, or none when nothing was grouped
+        assert len(r["grouped_clusters"]) <= 1 and sum(r["grouped_clusters"]) == r["keypoints_grouped"]
     (tmp_path / "cut.toml").write_text("[preprocess]\ncluster_tolerance = 0.0045\nmin_cluster_points = 1\n")
     text, cut = _diagnose(synth_small, tmp_path / "b.json", "--limit", "1", "--pipeline", str(tmp_path / "cut.toml"))
     for r in cut["instances"]:
