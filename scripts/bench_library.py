@@ -7,7 +7,8 @@ Only the cat is in the library and in view, so a detection is correct when it is
 every other detection (another model, a scaled cat, a cat elsewhere) is a false positive.
 
 Prints per library: recall (frames whose cat is found), precision (correct detections / all), median seconds
-per frame, and the 40 / 8 time ratio.
+per frame, and the 40 / 8 time ratio; without targets, also each frame whose cat is missed or that has a false
+detection, with the false detections' model names and scores.
 
 ``--targets``: every model of the library is given as a target, one instance each (BOP localisation, as on an
 LM-O frame with its 8 objects named): the cost of searching that many given objects in one real frame. Only the
@@ -92,6 +93,10 @@ def run(folder: Path, rec, refs, pipeline: str, targets: bool = False, depth_onl
         found += any(ok)
         correct += sum(ok)
         total += len(res.detections)
+        wrong = [f"{lib[lib.index_of(d.obj_id)].name} {d.score:.3f}" for d, g in zip(res.detections, ok) if not g]
+        if not targets and (wrong or not any(ok)):  # with targets every model keeps a pose: not listed
+            print(f"  frame {ref.im_id}: {'' if any(ok) else 'cat missed; '}"
+                  f"false: {', '.join(wrong) or 'none'}", flush=True)
     return {"models": len(lib), "recall": found / len(refs), "precision": correct / max(total, 1),
             "detections": total, "median_s": float(np.median(times)), "build_s": build}
 
