@@ -93,10 +93,10 @@ def run(folder: Path, rec, refs, pipeline: str, targets: bool = False, depth_onl
         found += any(ok)
         correct += sum(ok)
         total += len(res.detections)
-        wrong = [f"{lib[lib.index_of(d.obj_id)].name} {d.score:.3f}" for d, g in zip(res.detections, ok) if not g]
+        wrong = [f"{d.model} {d.score:.3f}" for d, good in zip(res.detections, ok) if not good]
         if not targets and (wrong or not any(ok)):  # with targets every model keeps a pose: not listed
-            print(f"  frame {ref.im_id}: {'' if any(ok) else 'cat missed; '}"
-                  f"false: {', '.join(wrong) or 'none'}", flush=True)
+            print(f"  frame {ref.im_id}: {'' if any(ok) else 'cat missed; '}false: {', '.join(wrong) or 'none'}",
+                  flush=True)
     return {"models": len(lib), "recall": found / len(refs), "precision": correct / max(total, 1),
             "detections": total, "median_s": float(np.median(times)), "build_s": build}
 
