@@ -11,6 +11,11 @@ from .errors import ConfigError
 from .params import check_positive, param
 
 
+# m; the least residual spread ``scale_fit`` assumes (a Kinect's depth noise at close range): on noise-free data
+# a scale the view does not fix would otherwise look certain
+NOISE_FLOOR = 0.001
+
+
 @dataclass(frozen=True)
 class RefineConfig:
     """ICP refinement of hypotheses."""
@@ -74,11 +79,7 @@ def icp(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_in
         if len(p) < 6:
             break
         r = ((p - q) * n).sum(axis=1)
-        J = np.empty((len(p), 6))  # d r / d (omega, t) at the current pose: (p x n, n)
-        J[:, 0] = p[:, 1] * n[:, 2] - p[:, 2] * n[:, 1]
-        J[:, 1] = p[:, 2] * n[:, 0] - p[:, 0] * n[:, 2]
-        J[:, 2] = p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]
-        J[:, 3:] = n
+        J = _jacobian(p, n)
         Jw = J.T * w
         try:
             x = np.linalg.solve(Jw @ J + 1e-9 * np.eye(6), -(Jw @ r))
@@ -95,6 +96,60 @@ def icp(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_in
     r = ((p - q) * n).sum(axis=1)
     rmse = float(np.sqrt((r ** 2).mean())) if len(r) else float("inf")
     return RegistrationResult(T, len(p) / max(n_src, 1), rmse, len(p), it, converged)
+
+
+def scale_fit(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_init: np.ndarray,
+              cfg: RefineConfig, *, source_normals: np.ndarray, target_tree: cKDTree,
+              viewpoint: np.ndarray) -> tuple[float, float]:
+    """The size that fits: point-to-plane ICP of ``source`` (N, 3, with ``source_normals``) onto ``target`` (M, 3,
+    with ``target_normals``) from ``T_init`` (4, 4) as in ``icp``, with a scale about the source's centroid free
+    besides the pose. Returns ``(s, sd)``: the scale (1: the source's own size fits best) and its standard
+    deviation from the last Gauss-Newton step's normal matrix (inf where the view does not fix the size, as when
+    only three faces of a box are seen: scaling about the centre and moving the corner then look the same).
+    ``s`` is 1 and ``sd`` inf when fewer than 7 source points find a target point; ``sd`` is inf as well when the
+    scale runs out of [0.5, 2]. The residual spread behind ``sd`` is at least ``NOISE_FLOOR``."""
+    tree, T = target_tree, np.asarray(T_init, float).copy()
+    c0 = source.mean(axis=0)
+    s, sd = 1.0, float("inf")
+    for _ in range(cfg.iterations):
+        p, q, n, w, _ = _pairs(c0 + s * (source - c0), source_normals, target, target_normals, tree, T, cfg=cfg,
+                               viewpoint=viewpoint)
+        if len(p) < 7 or w.sum() <= 0:
+            return 1.0, float("inf")
+        r = ((p - q) * n).sum(axis=1)
+        J = np.empty((len(p), 7))
+        J[:, :6] = _jacobian(p, n)
+        J[:, 6] = ((p - transform(T, c0[None])[0]) * n).sum(axis=1)  # d r / d s: scaling about the centroid
+        Jw = J.T * w
+        H = Jw @ J
+        try:
+            x = np.linalg.solve(H + 1e-9 * np.eye(7), -(Jw @ r))
+            cov = np.linalg.inv(H + 1e-12 * np.eye(7))
+        except np.linalg.LinAlgError:
+            return 1.0, float("inf")
+        var = max(float((w * r ** 2).sum() / w.sum()), NOISE_FLOOR ** 2)
+        sd = float(np.sqrt(max(cov[6, 6], 0.0) * var)) * s
+        dT = np.eye(4)
+        dT[:3, :3] = _rotvec_matrix(x[:3])
+        dT[:3, 3] = x[3:6]
+        T = dT @ T
+        s *= 1.0 + x[6]
+        if not 0.5 < s < 2.0:  # ran off: the view does not hold the size
+            return float(s), float("inf")
+        if np.linalg.norm(x[:3]) < 1e-5 and np.linalg.norm(x[3:6]) < 1e-6 and abs(x[6]) < 1e-5:
+            break
+    return float(s), sd
+
+
+def _jacobian(p: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """(K, 6) derivative of the point-to-plane residuals ((p - q) . n) by a small motion (omega, t) of the points
+    ``p`` (K, 3) with target normals ``n`` (K, 3): the rows (p x n, n)."""
+    J = np.empty((len(p), 6))
+    J[:, 0] = p[:, 1] * n[:, 2] - p[:, 2] * n[:, 1]
+    J[:, 1] = p[:, 2] * n[:, 0] - p[:, 0] * n[:, 2]
+    J[:, 2] = p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]
+    J[:, 3:] = n
+    return J
 
 
 def _rotvec_matrix(v: np.ndarray) -> np.ndarray:
