@@ -31,7 +31,7 @@ from .look_alikes import Family, look_alike_families, transfer
 from .matching import Candidates, LibraryIndex, match_bounded, match_features, match_library
 from .prepared_model import PreparedModel
 from .preprocess import preprocess
-from .refine import RefineConfig, RegistrationResult, icp
+from .refine import RefineConfig, RegistrationResult, icp, scale_fit
 from .scene import Scene, SceneKeypoints
 from .verify import Verification, bbox_pixels, continuing_surface, resolve_conflicts, size_fit, verify
 
@@ -401,16 +401,38 @@ class Detector:
         rank = {j: n for n, j in enumerate(order)}
         return sorted(take(first + [j for j in order if j not in taken]), key=rank.get)  # best score first
 
-    def _one_size_per_spot(self, frame: Frame, order: list[int], hyps: list[Hypothesis],
+    def _one_size_per_spot(self, frame: Frame, scene: Scene, order: list[int], hyps: list[Hypothesis],
                            regs: list[RegistrationResult], vers: list[Verification]) -> list[int]:
-        """``order`` (indices of verified candidates) without the look-alikes beaten on their spot: where two
-        sizes of one shape (members of one family) claim the same pixels (more than ``verify.conflict_overlap`` of
-        the smaller support), only the size whose outline fits best stays (``verify.size_fit``, ties by index).
-        The verification score alone prefers a model slightly too small: all of it lies on the object."""
+        """``order`` (indices of verified candidates) without the look-alikes beaten on their spot, where two sizes
+        of one shape (members of one family) claim the same pixels (more than ``verify.conflict_overlap`` of the
+        smaller support). First the fitted scale (``refine.scale_fit``, the size ICP would give the model if it
+        could scale it): a size whose scale is further from 1 than another's by more than ``verify.size_margin``
+        (in log scale) loses to it, where the view fixes both. Of those left, only the size whose outline fits
+        best stays (``verify.size_fit``, ties by index). The verification score alone prefers a model slightly
+        too small: all of it lies on the object."""
         v = self.config.verify
         multi = [j for j in order if len(self._family[hyps[j].model_index].members) > 1]
         if len(multi) < 2:
             return order
+
+        def rivals(j: int, k: int) -> bool:
+            mj, mk = hyps[j].model_index, hyps[k].model_index
+            sj, sk = vers[j].support, vers[k].support
+            return (mj != mk and self._family[mj] is self._family[mk]
+                    and len(np.intersect1d(sj, sk, assume_unique=True)) > v.conflict_overlap * min(len(sj), len(sk)))
+
+        pairs = [(j, k) for n, j in enumerate(multi) for k in multi[n + 1:] if rivals(j, k)]
+        if not pairs:
+            return order
+        beaten: set[int] = set()
+        if v.size_margin > 0:
+            misfit = {j: self._scale_misfit(scene, hyps[j].model_index, regs[j].T_target_source)
+                      for j in sorted({j for p in pairs for j in p})}  # one after the other, as verification
+            for j, k in pairs:
+                (mj, sdj), (mk, sdk) = misfit[j], misfit[k]
+                if max(sdj, sdk) <= v.size_margin / 4 and abs(mj - mk) > v.size_margin:
+                    beaten.add(j if mj > mk else k)
+        multi = [j for j in multi if j not in beaten]
 
         def fit(j: int) -> float:
             mi = hyps[j].model_index
@@ -422,13 +444,17 @@ class Detector:
         fits = {j: fit(j) for j in multi}  # one after the other, as verification (``_verify``)
         kept: list[int] = []
         for j in sorted(multi, key=lambda j: (-fits[j], j)):
-            mj, sj = hyps[j].model_index, vers[j].support
-            if not any(hyps[k].model_index != mj and self._family[hyps[k].model_index] is self._family[mj]
-                       and len(np.intersect1d(sj, vers[k].support, assume_unique=True))
-                       > v.conflict_overlap * min(len(sj), len(vers[k].support)) for k in kept):
+            if not any(rivals(j, k) for k in kept):
                 kept.append(j)
-        beaten = set(multi) - set(kept)
+        beaten |= set(multi) - set(kept)
         return [j for j in order if j not in beaten]
+
+    def _scale_misfit(self, scene: Scene, model_index: int, T_cam_model: np.ndarray) -> tuple[float, float]:
+        """(|log s|, sd of s) of the scale ``refine.scale_fit`` gives the model at ``T_cam_model`` on the scene."""
+        pm = self.models[model_index]
+        s, sd = scale_fit(pm.icp_points, scene.points, scene.normals, T_cam_model, self.config.refine,
+                          source_normals=pm.icp_normals, target_tree=scene.tree, viewpoint=np.zeros(3))
+        return abs(float(np.log(s))) if s > 0 else float("inf"), sd
 
     def _verify(self, frame: Frame, scene: Scene | None, model_index: int, T_cam_model: np.ndarray,
                 stride: int = 1) -> Verification:
@@ -531,7 +557,7 @@ class Detector:
                 order = [j for j in order if vers[j].accepted(cfg.verify)]
             else:
                 order = [j for j in order if vers[j].n_supported > 0]
-            order = self._one_size_per_spot(frame, order, hyps, regs, vers)
+            order = self._one_size_per_spot(frame, scene, order, hyps, regs, vers)
             if targets is not None:
                 kept = self._select_targets(frame, scene, order, hyps, regs, vers, targets=targets, trace=trace)
             elif cfg.verify.selection == "global":

@@ -49,9 +49,14 @@ class VerifyConfig:
     size_ring: float = param(0.003, "m; look-alikes: of two sizes of one shape on one spot, the one whose outline "
                                     "fits is kept, counting against each the pixels this far outside its outline "
                                     "where the measured surface runs on (size_fit)")
+    size_margin: float = param(0.05, "look-alikes: before the outlines are compared, a size whose fitted scale "
+                                     "(refine.scale_fit) is further from 1 than another's on its spot by more than "
+                                     "this (in log scale) loses to it, where the view fixes both scales (0: off)")
 
     def __post_init__(self):
         check_positive(self, "depth_tolerance", "min_supported", "explain_radius", "clutter_radius", "size_ring")
+        if self.size_margin < 0:
+            raise ConfigError(f"VerifyConfig.size_margin must be >= 0, got {self.size_margin}")
         for n in ("min_score", "max_violation", "conflict_overlap", "prefilter", "max_penetration"):
             check_range(self, n, 0, 1)
         if self.selection not in ("threshold", "global"):

@@ -12,7 +12,7 @@ from pcdet.library import ModelLibrary
 from pcdet.look_alikes import MAX_SCALE, look_alike_families, transfer
 from pcdet.metrics import adds
 
-from .conftest import MODELS, random_pose
+from .conftest import MODELS, random_pose, shared
 
 
 def _samples(mesh: trimesh.Trimesh, spacing: float = 0.004) -> np.ndarray:
@@ -141,3 +141,36 @@ def test_a_scaled_copy_in_view_is_found_at_its_own_size(tmp_path):
     # the diagnosis counts the copy's matches through the bracket's candidate table
     diag = diagnose_frame(det, ds.frame(ref), [gt], None)[0]
     assert diag.stage == "found" and diag.keypoints_matched >= 3, diag
+
+
+def test_on_real_frames_the_cat_is_kept_at_its_own_size(tmp_path):
+    """Every 8th of the 40 real LINEMOD cat frames and the scanned cat at 0.92, 1 and 1.08 in the library, no
+    targets: the cat is found within ADD 0.1 d in at least 4 of the 5 frames, and each cat kept is the true size,
+    not a copy 8 % off (on frame 480 the verification score and the outline both prefer the 0.92 copy; the fitted
+    scale, ``verify.size_margin``, decides)."""
+    import json
+
+    from pcdet.config import load_pipeline
+    from pcdet.datasets import open_recording
+    from pcdet.metrics import add
+
+    data = shared("linemod_cat")
+    info = json.loads((data / "models" / "models_info.json").read_text())
+    mesh = trimesh.load(data / "models" / "obj_000006.ply", process=False)
+    meta = {}
+    for n, s in enumerate((1.0, 0.92, 1.08)):
+        _scaled(mesh, s).export(tmp_path / f"obj_{6 + 100 * n:06d}.ply")
+        meta[str(6 + 100 * n)] = {**info["6"], "diameter": info["6"]["diameter"] * s}
+    (tmp_path / "models_info.json").write_text(json.dumps(meta))
+    cfg = load_pipeline("default")
+    det = Detector(ModelLibrary.from_folder(tmp_path, cfg), cfg)
+    cat = det.models[det.library.index_of(6)].model
+    rec = open_recording(data)
+    found, kept = 0, {}
+    for r in list(rec)[::8]:
+        T = next(g["T_cam_model"] for g in rec.gt(r) if g["obj_id"] == 6)
+        res = det.detect(rec.frame(r), None)
+        kept[r.im_id] = [d.obj_id for d in res.detections]
+        found += any(d.obj_id == 6 and add(d.T_cam_model, T, cat.points) < 0.1 * cat.diameter
+                     for d in res.detections)
+    assert found >= 4 and all(i == 6 for ids in kept.values() for i in ids), (found, kept)
