@@ -14,7 +14,7 @@ from pcdet.synth import KINECT
 
 
 def test_icp_recovers_small_offset(library, rng):
-    m = library[2]
+    m = library[4]
     T = np.eye(4)
     T[:3, :3] = Rotation.from_euler("xyz", [40, 10, 30], degrees=True).as_matrix()
     T[:3, 3] = [0.02, -0.01, 0.7]
@@ -50,7 +50,7 @@ def test_icp_point_weights_scale_each_points_pull(library):
     leave those points out exactly as if they were not there (1e-12). Half of the source is moved 2 cm off the
     model; with those points weighted zero the pose is the truth's within 0.1 mm and 0.1 deg, and without the
     weights it is not (the moved half drags it). Weights of the wrong length are refused."""
-    m = library[2]
+    m = library[4]
     T = np.eye(4)
     T[:3, 3] = [0.0, 0.0, 0.6]
     target, normals = m.points + T[:3, 3], m.normals  # the model moved 0.6 m along z, not turned
