@@ -424,6 +424,7 @@ class Detector:
         pairs = [(j, k) for n, j in enumerate(multi) for k in multi[n + 1:] if rivals(j, k)]
         if not pairs:
             return order
+        rival = {frozenset(p) for p in pairs}
         beaten: set[int] = set()
         if v.size_margin > 0:
             misfit = {j: self._scale_misfit(scene, hyps[j].model_index, regs[j].T_target_source)
@@ -444,7 +445,7 @@ class Detector:
         fits = {j: fit(j) for j in multi}  # one after the other, as verification (``_verify``)
         kept: list[int] = []
         for j in sorted(multi, key=lambda j: (-fits[j], j)):
-            if not any(rivals(j, k) for k in kept):
+            if not any(frozenset((j, k)) in rival for k in kept):
                 kept.append(j)
         beaten |= set(multi) - set(kept)
         return [j for j in order if j not in beaten]

@@ -55,13 +55,11 @@ class VerifyConfig:
 
     def __post_init__(self):
         check_positive(self, "depth_tolerance", "min_supported", "explain_radius", "clutter_radius", "size_ring")
-        if self.size_margin < 0:
-            raise ConfigError(f"VerifyConfig.size_margin must be >= 0, got {self.size_margin}")
         for n in ("min_score", "max_violation", "conflict_overlap", "prefilter", "max_penetration"):
             check_range(self, n, 0, 1)
         if self.selection not in ("threshold", "global"):
             raise ConfigError(f"VerifyConfig.selection must be 'threshold' or 'global', got {self.selection!r}")
-        for n in ("duplicate_weight", "clutter_weight", "violation_weight"):
+        for n in ("duplicate_weight", "clutter_weight", "violation_weight", "size_margin"):
             if getattr(self, n) < 0:
                 raise ConfigError(f"VerifyConfig.{n} must be >= 0, got {getattr(self, n)}")
 
