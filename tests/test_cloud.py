@@ -82,3 +82,15 @@ def test_outward_normals_point_away_from_the_centre_of_a_sphere(rng):
     n = outward_normals(pts, 0.15, 30)
     assert ((n * d).sum(axis=1) > 0.9).all()
     assert np.allclose(np.abs(estimate_normals(pts, 0.15, 30, viewpoint=None)), np.abs(n))
+
+
+def test_diameter_is_the_largest_distance_between_two_points(rng):
+    """Over the convex hull, exactly (to the last bit) the largest of all pairwise distances, which the test
+    takes by brute force; a single point has diameter 0."""
+    from pcdet.cloud import diameter
+
+    for n, shape in ((500, (1.0, 0.3, 0.1)), (2000, (0.05, 0.05, 0.2))):
+        P = rng.normal(size=(n, 3)) * shape
+        brute = float(np.sqrt(((P[:, None, :] - P[None, :, :]) ** 2).sum(-1).max()))
+        assert diameter(P) == brute
+    assert diameter(np.ones((1, 3))) == 0.0
