@@ -85,10 +85,7 @@ def icp(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_in
             x = np.linalg.solve(Jw @ J + 1e-9 * np.eye(6), -(Jw @ r))
         except np.linalg.LinAlgError:
             break
-        dT = np.eye(4)
-        dT[:3, :3] = _rotvec_matrix(x[:3])
-        dT[:3, 3] = x[3:]
-        T = dT @ T
+        T = _motion(x) @ T
         if np.linalg.norm(x[:3]) < tolerance[0] and np.linalg.norm(x[3:]) < tolerance[1]:
             converged = True
             break
@@ -110,7 +107,7 @@ def scale_fit(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray
     scale runs out of [0.5, 2]. The residual spread behind ``sd`` is at least ``NOISE_FLOOR``."""
     tree, T = target_tree, np.asarray(T_init, float).copy()
     c0 = source.mean(axis=0)
-    s, sd = 1.0, float("inf")
+    s, last = 1.0, None
     for _ in range(cfg.iterations):
         p, q, n, w, _ = _pairs(c0 + s * (source - c0), source_normals, target, target_normals, tree, T, cfg=cfg,
                                viewpoint=viewpoint)
@@ -124,21 +121,23 @@ def scale_fit(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray
         H = Jw @ J
         try:
             x = np.linalg.solve(H + 1e-9 * np.eye(7), -(Jw @ r))
-            cov = np.linalg.inv(H + 1e-12 * np.eye(7))
         except np.linalg.LinAlgError:
             return 1.0, float("inf")
-        var = max(float((w * r ** 2).sum() / w.sum()), NOISE_FLOOR ** 2)
-        sd = float(np.sqrt(max(cov[6, 6], 0.0) * var)) * s
-        dT = np.eye(4)
-        dT[:3, :3] = _rotvec_matrix(x[:3])
-        dT[:3, 3] = x[3:6]
-        T = dT @ T
+        last = (H, max(float((w * r ** 2).sum() / w.sum()), NOISE_FLOOR ** 2), s)  # this step's normal matrix
+        T = _motion(x[:6]) @ T
         s *= 1.0 + x[6]
         if not 0.5 < s < 2.0:  # ran off: the view does not hold the size
             return float(s), float("inf")
         if np.linalg.norm(x[:3]) < 1e-5 and np.linalg.norm(x[3:6]) < 1e-6 and abs(x[6]) < 1e-5:
             break
-    return float(s), sd
+    if last is None:
+        return float(s), float("inf")
+    H, var, s_step = last
+    try:
+        cov = np.linalg.inv(H + 1e-12 * np.eye(7))
+    except np.linalg.LinAlgError:
+        return 1.0, float("inf")
+    return float(s), float(np.sqrt(max(cov[6, 6], 0.0) * var)) * s_step
 
 
 def _jacobian(p: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -150,6 +149,14 @@ def _jacobian(p: np.ndarray, n: np.ndarray) -> np.ndarray:
     J[:, 2] = p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]
     J[:, 3:] = n
     return J
+
+
+def _motion(x: np.ndarray) -> np.ndarray:
+    """(4, 4) rigid motion of a Gauss-Newton step ``x`` = (omega (rad), t (m)), shape (6,)."""
+    dT = np.eye(4)
+    dT[:3, :3] = _rotvec_matrix(x[:3])
+    dT[:3, 3] = x[3:]
+    return dT
 
 
 def _rotvec_matrix(v: np.ndarray) -> np.ndarray:
