@@ -164,7 +164,7 @@ def main():
             table(open_recording(DATA / name), label)
     with tempfile.TemporaryDirectory() as tmp:
         lib = ModelLibrary.from_folder(ROOT / "models")
-        # the idealised scenes (edge pixels dropped, exact meshes), on which the README's figures were measured
+        # the idealised scenes (edge pixels dropped, exact meshes), where docs/measurements.md's figures come from
         rec = synthesize(lib, Path(tmp) / "seq", SynthConfig(scenes=1, objects=4, sequence=args.frames,
                                                              seed=args.seed, sensor="structured_light",
                                                              mesh_error=0))

@@ -30,7 +30,7 @@ def main():
     args = ap.parse_args()
     lib = ModelLibrary.from_folder(ROOT / "models")
     with tempfile.TemporaryDirectory() as tmp:
-        # the idealised scenes (edge pixels dropped, exact meshes), on which the README's figures were measured
+        # the idealised scenes (edge pixels dropped, exact meshes), where docs/measurements.md's figures come from
         data = args.data or synthesize(lib, Path(tmp) / "suite", SynthConfig(scenes=args.scenes, objects=4,
                                                                              seed=args.seed, sensor="structured_light",
                                                                              mesh_error=0))

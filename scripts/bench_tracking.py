@@ -29,7 +29,7 @@ def main():
     args = ap.parse_args()
     lib = ModelLibrary.from_folder(ROOT / "models")
     with tempfile.TemporaryDirectory() as tmp:
-        # the idealised scenes (edge pixels dropped, exact meshes), on which the README's figures were measured
+        # the idealised scenes (edge pixels dropped, exact meshes), where docs/measurements.md's figures come from
         rec = open_recording(synthesize(lib, Path(tmp) / "seq", SynthConfig(
             scenes=1, objects=args.objects, sequence=args.frames, seed=args.seed, sensor="structured_light",
             mesh_error=0)))

@@ -10,7 +10,7 @@ Thresholds (issue 2): with the ground-truth object ids given (BOP localisation),
 (global verification). On the idealised scenes of the same seed: 0.938 (0.912 before; 0.950 at ADD-S, the same on
 the code of 2026-11-30); 1.000 at 0.963 (0.987 at 0.963 with thresholds only). Before the
 sensor model had its own random stream the suite's scenes were others (0.875; 0.959 at 0.887), and other seeds
-landed on both sides of the bar (seed 7: 0.95; seed 99: 0.825), see the README.
+landed on both sides of the bar (seed 7: 0.95; seed 99: 0.825), see docs/measurements.md.
 """
 import pytest
 
