@@ -130,9 +130,7 @@ def scale_fit(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray
             return float(s), float("inf")
         if np.linalg.norm(x[:3]) < 1e-5 and np.linalg.norm(x[3:6]) < 1e-6 and abs(x[6]) < 1e-5:
             break
-    if last is None:
-        return float(s), float("inf")
-    H, var, s_step = last
+    H, var, s_step = last  # set: cfg.iterations >= 1, and every step either returns or sets it
     try:
         cov = np.linalg.inv(H + 1e-12 * np.eye(7))
     except np.linalg.LinAlgError:
