@@ -54,7 +54,8 @@ class TrackingConfig:
     associate_distance: float = 0.25
     crop_margin: float = 0.03
     odometry: OdometryConfig = field(default_factory=lambda: OdometryConfig(
-        method="icp", icp_voxel=0.02, pixel_stride=2, keyframe_distance=0.0, keyframe_angle_deg=0.0, keyframes=1))
+        method="icp", icp_voxel=0.02, pixel_stride=2, keyframe_distance=0.0, keyframe_angle_deg=0.0, keyframes=1,
+        icp_kernel=2.0))
 
 
 @dataclass
