@@ -28,6 +28,7 @@ from .cloud import estimate_normals, voxel_downsample
 from .errors import ConfigError
 from .frame import Frame
 from .metrics import rotation_error_deg
+from .params import check_positive
 from .refine import RefineConfig, icp
 
 
@@ -72,8 +73,7 @@ class OdometryConfig:
     icp_kernel: float = 1.0
 
     def __post_init__(self):
-        if not self.icp_kernel > 0:
-            raise ConfigError(f"OdometryConfig.icp_kernel must be > 0, got {self.icp_kernel}")
+        check_positive(self, "icp_kernel")
         if self.depth_weight_power < 0:
             raise ConfigError(f"OdometryConfig.depth_weight_power must be >= 0, got {self.depth_weight_power}")
         if self.method not in ("kiss", "icp", "kiss+icp"):

@@ -142,19 +142,23 @@ def test_odometry_command_on_real_kinect_frames(tmp_path):
     assert read_tum(tmp_path / "odo2" / "trajectory.txt")[0] == stamps
 
 
+def _sevenscenes_ate(first: int, stop: int) -> float:
+    """ATE (m) of the default odometry over the real 7-Scenes frames [first, stop), run from frame ``first``."""
+    from .conftest import shared
+
+    rec = open_recording(shared("sevenscenes"))
+    refs = list(rec)[first:stop]
+    truth = rec.camera_poses()
+    gt = [np.linalg.inv(truth[refs[0]]) @ truth[r] for r in refs]
+    return ate_rmse(list(odometry((rec.frame(r) for r in refs), OdometryConfig())), gt)
+
+
 def test_depth_noise_weights_on_real_kinect_frames():
     """The first 122 real 7-Scenes frames (up to the ground truth's 36 mm jump between frames 121 and 122): the
     default, each point weighted by the inverse of a structured-light sensor's depth noise variance, stays under
     15 mm ATE (measured 11.8 mm); with every point weighted alike it drifts to 15.6 mm. The bar is below the
     unweighted result, so the test fails if the weights stop taking effect."""
-    from .conftest import shared
-
-    rec = open_recording(shared("sevenscenes"))
-    refs = list(rec)[:122]
-    truth = rec.camera_poses()
-    gt = [np.linalg.inv(truth[refs[0]]) @ truth[r] for r in refs]
-    frames = [rec.frame(r) for r in refs]
-    assert ate_rmse(list(odometry(frames, OdometryConfig())), gt) < 0.015
+    assert _sevenscenes_ate(0, 122) < 0.015
 
 
 def test_a_tukey_kernel_one_map_cell_wide_on_real_kinect_frames():
@@ -162,14 +166,7 @@ def test_a_tukey_kernel_one_map_cell_wide_on_real_kinect_frames():
     wide (the default) the ATE stays under 12 mm (measured 9.6 mm); with the former two spacings it was 13.9 mm:
     the narrower kernel lets fewer stray pairs (far points, surfaces seen from a new side) pull the pose. The bar
     lies between the two, so the test fails if the kernel stops taking effect."""
-    from .conftest import shared
-
-    rec = open_recording(shared("sevenscenes"))
-    refs = list(rec)[150:300]
-    truth = rec.camera_poses()
-    gt = [np.linalg.inv(truth[refs[0]]) @ truth[r] for r in refs]
-    frames = [rec.frame(r) for r in refs]
-    assert ate_rmse(list(odometry(frames, OdometryConfig())), gt) < 0.012
+    assert _sevenscenes_ate(150, 300) < 0.012
 
 
 def test_odometry_refuses_a_kernel_that_is_not_positive():
