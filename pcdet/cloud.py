@@ -13,6 +13,15 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 
+def voxel_keys(points: np.ndarray, voxel: float) -> np.ndarray:
+    """(N,) int64 index of the cubic voxel of side ``voxel`` (m) that holds each of the (N, 3) points: equal for
+    points in one voxel, different otherwise (the voxels of the points' bounding box numbered row by row)."""
+    keys = np.floor(points / voxel).astype(np.int64)
+    keys -= keys.min(axis=0)
+    dims = keys.max(axis=0) + 1
+    return (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
+
+
 def voxel_downsample(points: np.ndarray, voxel: float, normals: np.ndarray | None = None,
                      representatives: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """Average the points (and normals) that fall in each cubic voxel of side ``voxel`` (m).
@@ -23,10 +32,7 @@ def voxel_downsample(points: np.ndarray, voxel: float, normals: np.ndarray | Non
     points = np.asarray(points, dtype=np.float64)
     if len(points) == 0:
         return points.reshape(0, 3), None if normals is None else normals.reshape(0, 3), np.zeros(0, np.int64)
-    keys = np.floor(points / voxel).astype(np.int64)
-    keys -= keys.min(axis=0)
-    dims = keys.max(axis=0) + 1
-    lin = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
+    lin = voxel_keys(points, voxel)
     order = np.argsort(lin, kind="stable")
     sl = lin[order]
     first = np.ones(len(sl), bool)

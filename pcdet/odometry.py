@@ -24,7 +24,7 @@ from scipy.spatial import cKDTree
 
 from .align import transform
 from .blas import on_one_blas_thread
-from .cloud import estimate_normals, voxel_downsample
+from .cloud import estimate_normals, voxel_downsample, voxel_keys
 from .errors import ConfigError
 from .frame import Frame
 from .metrics import rotation_error_deg
@@ -153,7 +153,7 @@ class _KeyframeICP:
         N = np.concatenate([n for _, n in self.keys])
         if len(self.keys) > 1:  # one point per map cell, the newest keyframe's first
             P, N = P[::-1], N[::-1]
-            _, first = np.unique(np.floor(P / self._vox).astype(np.int64), axis=0, return_index=True)
+            _, first = np.unique(voxel_keys(P, self._vox), return_index=True)
             first.sort()
             P, N = P[first], N[first]
         self.map = (P, N, cKDTree(P), self._vox)

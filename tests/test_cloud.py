@@ -9,6 +9,7 @@ from pcdet.cloud import (
     outward_normals,
     segment_plane,
     voxel_downsample,
+    voxel_keys,
 )
 
 
@@ -21,6 +22,20 @@ def test_voxel_grid_means_and_representatives(rng):
     np.testing.assert_array_equal(np.floor(mean / 0.02).astype(int), k0)  # representative in its own cell
     m2, _, rep2 = voxel_downsample(pts[::-1].copy(), 0.02)
     np.testing.assert_allclose(m2, mean, atol=1e-12)  # order of input does not matter for the means
+
+
+def test_voxel_keys_are_equal_exactly_within_one_cell(rng):
+    """Two points share a key if and only if their floor(p / voxel) cells are equal: the same partition as a
+    row-wise unique of the integer cells, with negative coordinates too."""
+    pts = rng.uniform(-0.3, 0.2, (20000, 3))
+    keys = voxel_keys(pts, 0.05)
+    _, by_cell = np.unique(np.floor(pts / 0.05).astype(np.int64), axis=0, return_inverse=True)
+    _, by_key = np.unique(keys, return_inverse=True)
+    assert keys.dtype == np.int64 and keys.shape == (20000,)
+    assert len(np.unique(by_cell)) == len(np.unique(by_key)) == 1000  # 10 x 10 x 10 cells, all occupied
+    same_cell = by_cell.ravel()[:, None] == by_cell.ravel()[None, :200]
+    same_key = by_key[:, None] == by_key[None, :200]
+    np.testing.assert_array_equal(same_cell, same_key)
 
 
 def test_plane_found_with_outliers(rng):
