@@ -28,7 +28,10 @@ def test_pcl_milk_found_once_within_5mm_2deg(model_file):
 
 
 @pytest.mark.real
-def test_ycbv_frame_two_of_three_by_adds():
+def test_ycbv_frame_all_three_by_adds():
+    """The real YCB-Video frame with its three objects given: the default pipeline puts a detection of each
+    within ADD-S 0.1 d of the truth (the mug, obj 14, is the hardest: `pcdet diagnose ../shared/data/ycbv_frame
+    --metric adds` shows its table)."""
     ds = BopDataset(shared("ycbv_frame"))
     lib = ModelLibrary.from_folder(ds.models_dir)
     img = ds.images[0]
@@ -38,7 +41,7 @@ def test_ycbv_frame_two_of_three_by_adds():
         m = lib.by_id(g["obj_id"])
         errs = [adds(d.T_cam_model, g["T_cam_model"], m.points) for d in res.detections if d.obj_id == m.obj_id]
         good += bool(errs) and min(errs) < 0.1 * m.diameter
-    assert good >= 2, f"{good} of 3 objects within ADD-S 0.1 d"
+    assert good == 3, f"{good} of 3 objects within ADD-S 0.1 d"
 
 
 @pytest.mark.real
