@@ -131,16 +131,23 @@ def orient_along_surface(points: np.ndarray, normals: np.ndarray, k: int = 10) -
     return out
 
 
-def diameter(points: np.ndarray) -> float:
-    """Largest distance between two of the (N, 3) points (m), over their convex hull."""
+def hull_vertices(points: np.ndarray) -> np.ndarray:
+    """(H, 3) the points among the (N, 3) ``points`` that are vertices of their convex hull, in index order; all
+    of them where the set is flat or otherwise degenerate (qhull's errors are not user-facing)."""
     from scipy.spatial import ConvexHull
-    from scipy.spatial.distance import pdist
 
     points = np.asarray(points, float)
     try:
-        hull = points[ConvexHull(points).vertices]
-    except Exception:  # flat or degenerate sets: fall back on all points (qhull's errors are not user-facing)
-        hull = points
+        return points[np.sort(ConvexHull(points).vertices)]
+    except Exception:
+        return points
+
+
+def diameter(points: np.ndarray) -> float:
+    """Largest distance between two of the (N, 3) points (m), over their convex hull."""
+    from scipy.spatial.distance import pdist
+
+    hull = hull_vertices(points)
     if len(hull) > 3000:
         hull = hull[np.linspace(0, len(hull) - 1, 3000).astype(int)]
     if len(hull) == 1:  # one point (pdist has no pair to give)

@@ -33,7 +33,7 @@ from .prepared_model import PreparedModel
 from .preprocess import preprocess
 from .refine import RefineConfig, RegistrationResult, icp, scale_fit
 from .scene import Scene, SceneKeypoints
-from .verify import Verification, bbox_pixels, continuing_surface, resolve_conflicts, size_fit, verify
+from .verify import Verification, bbox_pixels, continuing_surface, resolve_conflicts, size_fit, verify_poses
 
 
 @dataclass
@@ -459,13 +459,28 @@ class Detector:
 
     def _verify(self, frame: Frame, scene: Scene | None, model_index: int, T_cam_model: np.ndarray,
                 stride: int = 1) -> Verification:
-        """``verify`` of one pose. Callers verify their poses one after the other, not on the thread pool: open3d's
-        ray casting already uses every core, and on two cores two verifications at once took longer than one after
-        the other (8-object real frames 0.93-0.98 of the time a frame; one-model frames the same)."""
+        """``verify`` of one pose (``_verify_poses`` of one)."""
+        return self._verify_poses(frame, scene, [(model_index, T_cam_model)], stride)[0]
+
+    def _verify_poses(self, frame: Frame, scene: Scene | None, poses: list[tuple[int, np.ndarray]],
+                      stride: int = 1) -> list[Verification]:
+        """``verify`` of each ``(model index, T_cam_model)`` in ``poses``, in order; each model's poses are cast
+        at once (``verify.verify_poses``). Not on the thread pool: open3d's ray casting already uses every core,
+        and on two cores two verifications at once took longer than one after the other (8-object real frames
+        0.93-0.98 of the time a frame; one-model frames the same)."""
         cfg = self.config
-        return verify(self.library[model_index], T_cam_model, frame.depth, frame.camera, cfg.verify,
-                      spacing=cfg.preprocess.voxel, plane=None if scene is None else scene.plane, stride=stride,
-                      caster=self.models[model_index].caster)
+        by_model: dict[int, list[int]] = {}
+        for n, (mi, _) in enumerate(poses):
+            by_model.setdefault(mi, []).append(n)
+        out: list[Verification | None] = [None] * len(poses)
+        for mi, ns in by_model.items():
+            pm = self.models[mi]
+            found = verify_poses(pm.model, [poses[n][1] for n in ns], frame.depth, frame.camera, cfg.verify,
+                                 spacing=cfg.preprocess.voxel, plane=None if scene is None else scene.plane,
+                                 stride=stride, caster=pm.caster, hull=pm.hull)
+            for n, v in zip(ns, found):
+                out[n] = v
+        return out
 
     def _coarse_icp(self, pm: PreparedModel, scene: Scene, T_init: np.ndarray) -> np.ndarray:
         """A raw pose moved by two short rounds of ICP on a sparse sample of the model, with wide
@@ -517,7 +532,8 @@ class Detector:
             # cheap first look at the raw poses (a look-alike's is its representative's): only plausible ones are
             # worth an ICP
             used = sorted(set(source))
-            looks = {i: self._verify(frame, scene, raw[i].model_index, raw[i].T_scene_model, stride=2) for i in used}
+            looks = dict(zip(used, self._verify_poses(frame, scene, [(raw[i].model_index, raw[i].T_scene_model)
+                                                                    for i in used], stride=2)))
             pre = [looks[i] for i in source]
         # a short coarse ICP for the best raw hypotheses of each model, then the full ICP for the best few
         rc = cfg.refine
@@ -532,7 +548,8 @@ class Detector:
                 moved = self._map(lambda j: self._coarse_icp(self.models[hyps[j].model_index], scene,
                                                              hyps[j].T_scene_model), coarse)
             with tm("verify"):
-                second = [self._verify(frame, scene, hyps[j].model_index, T, stride=2) for j, T in zip(coarse, moved)]
+                second = self._verify_poses(frame, scene, [(hyps[j].model_index, T) for j, T in zip(coarse, moved)],
+                                            stride=2)
             # the coarse ICP can also slide a good raw pose onto a neighbour: keep whichever looks better
             look = {j: (v if v.score >= pre[j].score else pre[j]) for j, v in zip(coarse, second)}
             start = {j: (T if second[n].score >= pre[j].score else hyps[j].T_scene_model)
@@ -551,8 +568,7 @@ class Detector:
             regs = self._map(lambda j: self._icp(self.models[hyps_all[j].model_index], scene.points, scene.normals,
                                                  start[j], scene.tree), keep)
         with tm("verify"):
-            vers: list[Verification] = [self._verify(frame, scene, h.model_index, r.T_target_source)
-                                        for h, r in zip(hyps, regs)]
+            vers = self._verify_poses(frame, scene, [(h.model_index, r.T_target_source) for h, r in zip(hyps, regs)])
             order = sorted(range(len(hyps)), key=lambda j: (-vers[j].score, j))
             if targets is None:
                 order = [j for j in order if vers[j].accepted(cfg.verify)]

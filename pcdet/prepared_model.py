@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .cloud import voxel_downsample
+from .cloud import hull_vertices, voxel_downsample
 from .colour import chromaticity
 from .model import ObjectModel
 from .render import MeshCaster
@@ -19,7 +19,9 @@ class PreparedModel:
     icp_points, icp_normals : (P, 3) samples and outward normals (model frame, m) that ICP moves;
     reference : (3,) the model point Hough votes are cast for (m); descriptor_tree : KD-tree over
     ``model.features``; caster : the mesh's ray-casting structure for verification (None for point models);
-    colours : (K, 2) chromaticity of the keypoints (``colour.chromaticity``), None when the model has no colour."""
+    colours : (K, 2) chromaticity of the keypoints (``colour.chromaticity``), None when the model has no colour;
+    hull : (H, 3) the samples (``model.points``) on their convex hull, which verification places instead of all
+    samples where they decide its image box and its depth below the plane (``verify.verify_poses``)."""
 
     model: ObjectModel
     index: int
@@ -29,6 +31,7 @@ class PreparedModel:
     descriptor_tree: cKDTree
     caster: MeshCaster | None = None
     colours: np.ndarray | None = None
+    hull: np.ndarray | None = None
 
     @classmethod
     def build(cls, model: ObjectModel, index: int, *, icp_spacing: float) -> "PreparedModel":
@@ -38,4 +41,4 @@ class PreparedModel:
         caster = MeshCaster(model.vertices, model.faces) if model.is_mesh else None
         colours = chromaticity(model.kp_colors) if model.kp_colors is not None else None
         return cls(model, index, p, n, (model.points.max(0) + model.points.min(0)) / 2, cKDTree(model.features),
-                   caster, colours)
+                   caster, colours, hull_vertices(model.points))

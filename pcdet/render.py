@@ -95,19 +95,36 @@ class MeshCaster:
         self._scene.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)),
                                   o3d.core.Tensor(np.asarray(faces, dtype=np.uint32)))
 
-    def _cast(self, camera: Camera, T_cam_mesh: np.ndarray, pixels: np.ndarray) -> dict:
-        from ._o3d import o3d
-
+    @staticmethod
+    def _rays(camera: Camera, T_cam_mesh: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+        """(N, 6) float32 rays of flat ``pixels`` in the mesh frame, for the mesh at ``T_cam_mesh``."""
         rays = camera_rays(camera, pixels).astype(np.float64)
         R, t = T_cam_mesh[:3, :3], T_cam_mesh[:3, 3]
         rays[:, :3] = -R.T @ t  # the camera centre in the mesh frame
         rays[:, 3:] = rays[:, 3:] @ R  # directions rotated into the mesh frame (lengths kept: t_hit is z)
-        return self._scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))
+        return rays.astype(np.float32)
+
+    def _cast(self, camera: Camera, T_cam_mesh: np.ndarray, pixels: np.ndarray) -> dict:
+        from ._o3d import o3d
+
+        return self._scene.cast_rays(o3d.core.Tensor(self._rays(camera, T_cam_mesh, pixels)))
 
     def depth_at(self, camera: Camera, T_cam_mesh: np.ndarray, pixels: np.ndarray) -> np.ndarray:
         """(N,) float32 depth (m, 0 where the ray misses) of the mesh at ``T_cam_mesh`` at flat ``pixels``."""
-        hit = self._cast(camera, T_cam_mesh, pixels)["t_hit"].numpy()
-        return np.where(np.isfinite(hit), hit, 0).astype(np.float32)
+        return self.depth_at_poses(camera, [T_cam_mesh], [pixels])[0]
+
+    def depth_at_poses(self, camera: Camera, poses, pixels: list[np.ndarray]) -> list[np.ndarray]:
+        """``depth_at`` for B poses (each (4, 4)) at their own flat ``pixels`` (B arrays), all rays cast in one
+        call: each ray is traced on its own, so the depths are those of B calls, without B calls' overhead (the
+        first look at a frame's raw poses casts a few hundred rays for each of several hundred poses)."""
+        from ._o3d import o3d
+
+        if sum(len(p) for p in pixels) == 0:
+            return [np.zeros(0, np.float32) for _ in pixels]
+        rays = np.concatenate([self._rays(camera, T, p) for T, p in zip(poses, pixels)])
+        hit = self._scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        depth = np.where(np.isfinite(hit), hit, 0).astype(np.float32)
+        return np.split(depth, np.cumsum([len(p) for p in pixels])[:-1])
 
     def cast(self, camera: Camera, T_cam_mesh: np.ndarray, pixels: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -138,34 +138,68 @@ def _score(supported: int, violations: int, occluded: int, unknown: int, penetra
 
 def verify(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camera: Camera, cfg: VerifyConfig, *,
            spacing: float = 0.004, plane: Plane | None = None, stride: int = 1,
-           caster: MeshCaster | None = None) -> Verification:
+           caster: MeshCaster | None = None, hull: np.ndarray | None = None) -> Verification:
     """Compare ``model`` rendered at ``T_cam_model`` with measured ``depth`` (H, W) float32 metres; with the
     scene's supporting ``plane``, also measure how much of the model would sink into it. ``stride`` > 1 looks
-    at every stride-th row and column only (a quick first look; pixel counts shrink by stride^2)."""
-    P = transform(T_cam_model, model.points)
-    if model.is_mesh:
-        # cast only the rays of the model's bounding box
-        box = bbox_pixels(camera, P, stride)
-        box = np.zeros(0, np.int64) if box is None else box
-        rv = _mesh_depth(model, T_cam_model, camera, box, caster)
-        hit = rv > 0
-        pix, rv = box[hit], rv[hit]
-    else:
-        r = render_model(model, T_cam_model, camera, spacing=spacing, stride=stride).reshape(-1)
-        pix = np.flatnonzero(r > 0)
-        rv = r[pix]
-    dv = depth.reshape(-1)[pix]
-    known = dv > 0
+    at every stride-th row and column only (a quick first look; pixel counts shrink by stride^2).
+    ``caster``: the mesh's ray-casting structure (``render.MeshCaster``); ``hull``: see ``verify_poses``."""
+    return verify_poses(model, [T_cam_model], depth, camera, cfg, spacing=spacing, plane=plane, stride=stride,
+                        caster=caster, hull=hull)[0]
+
+
+def verify_poses(model: ObjectModel, poses, depth: np.ndarray, camera: Camera, cfg: VerifyConfig, *,
+                 spacing: float = 0.004, plane: Plane | None = None, stride: int = 1,
+                 caster: MeshCaster | None = None, hull: np.ndarray | None = None) -> list[Verification]:
+    """``verify`` of each of ``poses`` (B poses (4, 4) of one model), in order. With a ``caster``, the rays of all
+    B poses are cast in one call (``MeshCaster.depth_at_poses``): the same depths as one call per pose.
+
+    hull : optional (H, 3) vertices of the convex hull of ``model.points`` (``cloud.hull_vertices``). The image
+        box a mesh is cast in and the samples below the plane are then found on the hull alone where it decides
+        them, with the same result: where every hull vertex lies in front of the camera, the extreme projections
+        of the samples are those of hull vertices (x / z is linear-fractional, so its extremes over a polytope lie
+        at vertices); where none lies more than the tolerance below the plane, no sample does.
+    """
     tau = cfg.depth_tolerance
-    sup = known & (np.abs(dv - rv) <= tau)
-    occ = known & (dv < rv - tau)
-    vio = known & (dv > rv + tau)
-    ns, no, nv = int(sup.sum()), int(occ.sum()), int(vio.sum())
-    pen = 0.0
-    if plane is not None:
-        pen = float(np.mean(P @ plane.normal + plane.offset < -tau))
-    score = _score(ns, nv, no, int((~known).sum()), pen)
-    return Verification(score, ns / max(ns + nv, 1), ns / max(len(pix), 1), len(pix), ns, no, nv, pen, pix[sup])
+    placed_hull = [None if hull is None else transform(T, hull) for T in poses]
+    if model.is_mesh:
+        boxes = [_image_box(model, T, H, camera, stride) for T, H in zip(poses, placed_hull)]
+        if caster is not None:
+            depths = caster.depth_at_poses(camera, poses, boxes)
+        else:
+            depths = [_mesh_depth(model, T, camera, box, None) for T, box in zip(poses, boxes)]
+        seen = [(box[rv > 0], rv[rv > 0]) for box, rv in zip(boxes, depths)]
+    else:
+        seen = []
+        for T in poses:
+            r = render_model(model, T, camera, spacing=spacing, stride=stride).reshape(-1)
+            pix = np.flatnonzero(r > 0)
+            seen.append((pix, r[pix]))
+    out = []
+    for T, H, (pix, rv) in zip(poses, placed_hull, seen):
+        dv = depth.reshape(-1)[pix]
+        known = dv > 0
+        sup = known & (np.abs(dv - rv) <= tau)
+        occ = known & (dv < rv - tau)
+        vio = known & (dv > rv + tau)
+        ns, no, nv = int(sup.sum()), int(occ.sum()), int(vio.sum())
+        pen = 0.0
+        if plane is not None and (H is None or (H @ plane.normal + plane.offset).min() < -tau):
+            pen = float(np.mean(transform(T, model.points) @ plane.normal + plane.offset < -tau))
+        score = _score(ns, nv, no, int((~known).sum()), pen)
+        out.append(Verification(score, ns / max(ns + nv, 1), ns / max(len(pix), 1), len(pix), ns, no, nv, pen,
+                                pix[sup]))
+    return out
+
+
+def _image_box(model: ObjectModel, T_cam_model: np.ndarray, placed_hull: np.ndarray | None, camera: Camera,
+               stride: int) -> np.ndarray:
+    """(P,) flat pixel indices of the image box of ``model``'s samples at ``T_cam_model`` (``bbox_pixels``), read
+    off its placed hull vertices where all of them are in front of the camera; empty when the box misses."""
+    if placed_hull is not None and np.all(placed_hull[:, 2] > 1e-3):
+        box = bbox_pixels(camera, placed_hull, stride)
+    else:
+        box = bbox_pixels(camera, transform(T_cam_model, model.points), stride)
+    return np.zeros(0, np.int64) if box is None else box
 
 
 def continuing_surface(model: ObjectModel, T_cam_model: np.ndarray, depth: np.ndarray, camera: Camera, *,

@@ -4,7 +4,7 @@ import numpy as np
 from pcdet.config import VerifyConfig
 from pcdet.render import render_meshes
 from pcdet.synth import KINECT
-from pcdet.verify import resolve_conflicts, verify
+from pcdet.verify import resolve_conflicts, verify, verify_poses
 
 
 def _scene(m, wall=True):
@@ -44,6 +44,41 @@ def test_pose_over_missing_depth_is_not_free(library):
     T2[0, 3] += 0.06  # mostly over pixels with no measurement at all
     good, bad = verify(m, T, depth, KINECT, VerifyConfig()), verify(m, T2, depth, KINECT, VerifyConfig())
     assert bad.score < good.score - 0.2
+
+
+def test_poses_verified_at_once_match_one_by_one_on_all_samples(library):
+    """``verify_poses`` casts every pose's rays in one call and reads the image box and the depth below the plane
+    off the placed hull: each field must equal ``verify`` of that pose alone on every sample (no caster, no hull),
+    for poses in view, sinking into the plane, partly behind the camera (the hull's shortcut does not apply) and
+    out of the image, at stride 1 and 2."""
+    from pcdet.cloud import Plane, hull_vertices
+    from pcdet.render import MeshCaster
+
+    m = library[2]
+    T, depth = _scene(m)
+    plane = Plane(np.array([0.0, 0.0, -1.0]), 0.62, np.zeros(0, np.int64))  # z = 0.62: the model's back half sinks
+    poses = []
+    for dx, dz in ((0.0, 0.0), (0.01, 0.0), (0.04, 0.0), (0.0, 0.05), (0.0, -0.6), (3.0, 0.0)):
+        P = T.copy()
+        P[0, 3] += dx
+        P[2, 3] += dz  # dz = -0.6: the model straddles the camera's plane
+        poses.append(P)
+    hull = hull_vertices(m.points)
+    assert 0 < len(hull) < len(m.points)
+    caster = MeshCaster(m.vertices, m.faces)
+    fields = ("score", "fitness", "visible_fraction", "n_rendered", "n_supported", "n_occluded", "n_violations",
+              "penetration")
+    for stride in (1, 2):
+        for with_plane in (None, plane):
+            batch = verify_poses(m, poses, depth, KINECT, VerifyConfig(), plane=with_plane, stride=stride,
+                                 caster=caster, hull=hull)
+            for P, b in zip(poses, batch):
+                one = verify(m, P, depth, KINECT, VerifyConfig(), plane=with_plane, stride=stride)
+                assert all(getattr(b, f) == getattr(one, f) for f in fields)
+                assert np.array_equal(b.support, one.support)
+    sunk = verify(m, poses[0], depth, KINECT, VerifyConfig(), plane=plane)
+    assert 0 < sunk.penetration < 1 and verify(m, poses[0], depth, KINECT, VerifyConfig()).penetration == 0
+    assert verify(m, poses[-1], depth, KINECT, VerifyConfig()).n_rendered == 0
 
 
 def test_conflicts():
