@@ -31,7 +31,7 @@ from .look_alikes import Family, look_alike_families, transfer
 from .matching import Candidates, LibraryIndex, match_bounded, match_features, match_library
 from .prepared_model import PreparedModel
 from .preprocess import preprocess
-from .refine import RefineConfig, RegistrationResult, icp, scale_fit
+from .refine import RefineConfig, RegistrationResult, icp, icp_many, scale_fit
 from .scene import Scene, SceneKeypoints
 from .verify import Verification, bbox_pixels, continuing_surface, resolve_conflicts, size_fit, verify_poses
 
@@ -482,16 +482,22 @@ class Detector:
                 out[n] = v
         return out
 
-    def _coarse_icp(self, pm: PreparedModel, scene: Scene, T_init: np.ndarray) -> np.ndarray:
-        """A raw pose moved by two short rounds of ICP on a sparse sample of the model, with wide
-        correspondence distances (``refine.coarse_distance``, then two thirds of it)."""
+    def _coarse_icp(self, scene: Scene, poses: list[tuple[int, np.ndarray]]) -> list[np.ndarray]:
+        """Raw poses ``(model index, T_scene_model)`` each moved by two short rounds of ICP on a sparse sample of
+        its model, with wide correspondence distances (``refine.coarse_distance``, then two thirds of it); all of
+        them at once (``refine.icp_many``)."""
         rc = self.config.refine
-        step = max(1, -(-len(pm.icp_points) // rc.coarse_points))
-        src, nrm = pm.icp_points[::step], pm.icp_normals[::step]
-        T = T_init
+        src, nrm = [], []
+        for mi, _ in poses:
+            pm = self.models[mi]
+            step = max(1, -(-len(pm.icp_points) // rc.coarse_points))
+            src.append(pm.icp_points[::step])
+            nrm.append(pm.icp_normals[::step])
+        T = [T0 for _, T0 in poses]
         for d in (rc.coarse_distance, rc.coarse_distance * 2 / 3):
-            T = icp(src, scene.points, scene.normals, T, RefineConfig(iterations=8, max_distance=d, kernel=d / 2),
-                    source_normals=nrm, target_tree=scene.tree, viewpoint=np.zeros(3)).T_target_source
+            T = [r.T_target_source for r in icp_many(
+                src, scene.points, scene.normals, T, RefineConfig(iterations=8, max_distance=d, kernel=d / 2),
+                source_normals=nrm, target_tree=scene.tree, viewpoint=np.zeros(3), workers=self.workers)]
         return T
 
     def _icp(self, pm: PreparedModel, points, normals, T_init, tree=None) -> RegistrationResult:
@@ -545,8 +551,7 @@ class Detector:
             # and the budget would go to one instance of a crowded scene (or to one box turned every way)
             coarse = _spread_per_model(plausible, pre, hyps, start, self.models, rc.candidates, spots=spots)
             with tm("refine"):
-                moved = self._map(lambda j: self._coarse_icp(self.models[hyps[j].model_index], scene,
-                                                             hyps[j].T_scene_model), coarse)
+                moved = self._coarse_icp(scene, [(hyps[j].model_index, hyps[j].T_scene_model) for j in coarse])
             with tm("verify"):
                 second = self._verify_poses(frame, scene, [(hyps[j].model_index, T) for j, T in zip(coarse, moved)],
                                             stride=2)
@@ -565,8 +570,10 @@ class Detector:
         hyps_all, hyps = hyps, [hyps[j] for j in keep]
         stats["refined"] = len(hyps)
         with tm("refine"):
-            regs = self._map(lambda j: self._icp(self.models[hyps_all[j].model_index], scene.points, scene.normals,
-                                                 start[j], scene.tree), keep)
+            pms = [self.models[hyps_all[j].model_index] for j in keep]
+            regs = icp_many([pm.icp_points for pm in pms], scene.points, scene.normals, [start[j] for j in keep],
+                            cfg.refine, source_normals=[pm.icp_normals for pm in pms], target_tree=scene.tree,
+                            viewpoint=np.zeros(3), workers=self.workers)
         with tm("verify"):
             vers = self._verify_poses(frame, scene, [(h.model_index, r.T_target_source) for h, r in zip(hyps, regs)])
             order = sorted(range(len(hyps)), key=lambda j: (-vers[j].score, j))

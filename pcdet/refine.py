@@ -69,30 +69,107 @@ def icp(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_in
     """
     if weights is not None and np.shape(weights) != (len(source),):
         raise ValueError(f"icp weights must be one per source point ({len(source)},), got {np.shape(weights)}")
+    return icp_many([source], target, target_normals, [T_init], cfg, source_normals=[source_normals],
+                    target_tree=target_tree, viewpoint=viewpoint, tolerance=tolerance, weights=[weights])[0]
+
+
+def icp_many(sources: list[np.ndarray], target: np.ndarray, target_normals: np.ndarray, T_inits: list[np.ndarray],
+             cfg: RefineConfig, *, source_normals: list[np.ndarray | None] | None = None,
+             target_tree: cKDTree | None = None, viewpoint: np.ndarray | None = None,
+             tolerance: tuple[float, float] = (1e-5, 1e-6), weights: list[np.ndarray | None] | None = None,
+             workers: int = 1) -> list[RegistrationResult]:
+    """``icp`` of B problems onto one target: ``sources[b]`` (N_b, 3) from ``T_inits[b]`` (4, 4), with
+    ``source_normals[b]`` and ``weights[b]`` (each may be None), as B calls of ``icp`` would give them, bit for
+    bit: each problem steps on its own (its own stop, its own normal equations); what is per point (moving the
+    samples, the nearest target point, residuals, kernel weights, Jacobian rows) is done for all problems at once,
+    and the nearest-point queries of an iteration are one KD-tree call on ``workers`` threads (each query on its
+    own: the same on any number). For the many short ICPs of a frame's hypotheses, whose time went to a few
+    dozen small array steps per iteration and problem."""
+    B = len(sources)
+    nrm = list(source_normals) if source_normals is not None else [None] * B
+    wts = list(weights) if weights is not None else [None] * B
     tree = target_tree if target_tree is not None else cKDTree(target)
-    T = np.asarray(T_init, float).copy()
-    converged = False
-    it = 0
+    T = [np.asarray(t, float).copy() for t in T_inits]
+    its, converged, running = [0] * B, [False] * B, list(range(B))
     for it in range(1, cfg.iterations + 1):
-        p, q, n, w, _ = _pairs(source, source_normals, target, target_normals, tree, T, cfg=cfg, viewpoint=viewpoint,
-                              weights=weights)
-        if len(p) < 6:
+        if not running:
             break
-        r = ((p - q) * n).sum(axis=1)
-        J = _jacobian(p, n)
-        Jw = J.T * w
-        try:
-            x = np.linalg.solve(Jw @ J + 1e-9 * np.eye(6), -(Jw @ r))
-        except np.linalg.LinAlgError:
-            break
-        T = _motion(x) @ T
-        if np.linalg.norm(x[:3]) < tolerance[0] and np.linalg.norm(x[3:]) < tolerance[1]:
-            converged = True
-            break
-    p, q, n, w, n_src = _pairs(source, source_normals, target, target_normals, tree, T, cfg=cfg, viewpoint=viewpoint)
+        pairs = _pairs_many(sources, nrm, target, target_normals, tree, T, running, cfg=cfg, viewpoint=viewpoint,
+                            weights=wts, workers=workers)
+        J = _jacobian(pairs.p, pairs.n)
+        still = []
+        for b, (a, e) in zip(running, pairs.spans):
+            its[b] = it
+            if e - a < 6:
+                continue
+            Jw = J[a:e].T * pairs.w[a:e]
+            try:
+                x = np.linalg.solve(Jw @ J[a:e] + 1e-9 * np.eye(6), -(Jw @ pairs.r[a:e]))
+            except np.linalg.LinAlgError:
+                continue
+            T[b] = _motion(x) @ T[b]
+            if np.linalg.norm(x[:3]) < tolerance[0] and np.linalg.norm(x[3:]) < tolerance[1]:
+                converged[b] = True
+                continue
+            still.append(b)
+        running = still
+    final = _pairs_many(sources, nrm, target, target_normals, tree, T, list(range(B)), cfg=cfg, viewpoint=viewpoint,
+                        weights=None, workers=workers)
+    out = []
+    for b, ((a, e), n_src) in enumerate(zip(final.spans, final.n_src)):
+        r = final.r[a:e]
+        rmse = float(np.sqrt((r ** 2).mean())) if len(r) else float("inf")
+        out.append(RegistrationResult(T[b], len(r) / max(n_src, 1), rmse, len(r), its[b], converged[b]))
+    return out
+
+
+@dataclass
+class _Pairs:
+    """The matched pairs of several ICP problems, concatenated: source points p, target points q and normals n
+    (P, 3), residuals r and kernel weights w (P,); ``spans[i]`` the (start, end) of the i-th problem asked for,
+    ``n_src[i]`` its source points that took part (facing the viewpoint)."""
+
+    p: np.ndarray
+    q: np.ndarray
+    n: np.ndarray
+    r: np.ndarray
+    w: np.ndarray
+    spans: list[tuple[int, int]]
+    n_src: list[int]
+
+
+def _pairs_many(sources, source_normals, target, target_normals, tree, T, which: list[int], *, cfg, viewpoint,
+                weights, workers: int = 1) -> _Pairs:
+    """``_pairs`` of the problems ``which`` (indices into the per-problem lists), the per-point steps on all of
+    them at once; row for row the same numbers as one ``_pairs`` call per problem."""
+    ps, fronts, ws, n_src = [], [], [], []
+    for b in which:
+        p = transform(T[b], sources[b])
+        if source_normals[b] is not None and viewpoint is not None:
+            ns = source_normals[b] @ T[b][:3, :3].T
+            front = ((viewpoint - p) * ns).sum(axis=1) > 0
+            p = p[front]
+            w = None if weights is None or weights[b] is None else weights[b][front]
+        else:
+            w = None if weights is None else weights[b]
+        ps.append(p)
+        ws.append(w)
+        n_src.append(len(p))
+    p = np.concatenate(ps) if ps else np.zeros((0, 3))
+    d, j = tree.query(p, distance_upper_bound=cfg.max_distance, workers=workers)
+    ok = np.isfinite(d)
+    p, j = p[ok], j[ok]
+    q, n = target[j], target_normals[j]
     r = ((p - q) * n).sum(axis=1)
-    rmse = float(np.sqrt((r ** 2).mean())) if len(r) else float("inf")
-    return RegistrationResult(T, len(p) / max(n_src, 1), rmse, len(p), it, converged)
+    u = r / cfg.kernel
+    w = np.where(np.abs(u) < 1, (1 - u ** 2) ** 2, 0.0)
+    ends = np.cumsum(n_src)
+    kept = np.r_[0, np.cumsum(ok)][np.r_[0, ends]]  # matched points before each problem's first
+    spans = [(int(kept[i]), int(kept[i + 1])) for i in range(len(which))]
+    for (a, e), wb, o in zip(spans, ws, np.split(ok, ends[:-1])):
+        if wb is not None:
+            w[a:e] = w[a:e] * wb[o]
+    return _Pairs(p, q, n, r, w, spans, n_src)
 
 
 def scale_fit(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, T_init: np.ndarray,
@@ -167,20 +244,7 @@ def _rotvec_matrix(v: np.ndarray) -> np.ndarray:
 
 
 def _pairs(source, source_normals, target, target_normals, tree, T, *, cfg, viewpoint, weights=None):
-    p = transform(T, source)
-    if source_normals is not None and viewpoint is not None:
-        ns = source_normals @ T[:3, :3].T
-        front = ((viewpoint - p) * ns).sum(axis=1) > 0
-        p = p[front]
-        weights = None if weights is None else weights[front]
-    n_src = len(p)
-    d, j = tree.query(p, distance_upper_bound=cfg.max_distance)
-    ok = np.isfinite(d)
-    p, j = p[ok], j[ok]
-    q, n = target[j], target_normals[j]
-    r = ((p - q) * n).sum(axis=1)
-    u = r / cfg.kernel
-    w = np.where(np.abs(u) < 1, (1 - u ** 2) ** 2, 0.0)
-    if weights is not None:
-        w = w * weights[ok]
-    return p, q, n, w, n_src
+    """(p, q, n, w, n_src) of one problem (``_pairs_many``)."""
+    pr = _pairs_many([source], [source_normals], target, target_normals, tree, [T], [0], cfg=cfg,
+                     viewpoint=viewpoint, weights=[weights])
+    return pr.p, pr.q, pr.n, pr.w, pr.n_src[0]

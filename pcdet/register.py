@@ -28,7 +28,7 @@ from .lrf import shot_lrf
 from .matching import match_features
 from .model import ObjectModel
 from .prepared_model import PreparedModel
-from .refine import RegistrationResult, icp
+from .refine import RegistrationResult, icp, icp_many
 from .scene import SceneKeypoints
 
 # A model on one of its partial scans explains all of the scan (coverage >= 0.97 on the bunny) but half of the
@@ -158,8 +158,10 @@ def register(source, target, config: RegisterConfig | None = None, *, units="aut
         best, best_h, best_key = None, None, None
         short = dataclasses.replace(rc, iterations=min(SHORT_ICP, rc.iterations))
         few = sp[::-(-len(sp) // SHORT_POINTS)]
-        for h in hyps:  # each hypothesis's T_scene_model is a T_target_source
-            r = icp(few, tp, tn, h.T_scene_model, short, target_tree=tree, tolerance=tol)
+        # each hypothesis's T_scene_model is a T_target_source; the short ICPs run side by side (icp_many)
+        shorts = icp_many([few] * len(hyps), tp, tn, [h.T_scene_model for h in hyps], short, target_tree=tree,
+                          tolerance=tol)
+        for h, r in zip(hyps, shorts):
             key = (on_target(transform(r.T_target_source, sp)), -r.rmse_m)
             if best_key is None or key > best_key:
                 best, best_h, best_key = r, h, key

@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 from pcdet.cloud import estimate_normals
 from pcdet.config import RefineConfig
 from pcdet.metrics import rotation_error_deg
-from pcdet.refine import icp, scale_fit
+from pcdet.refine import icp, icp_many, scale_fit
 from pcdet.render import render_meshes
 from pcdet.synth import KINECT
 
@@ -32,6 +32,40 @@ def test_icp_recovers_small_offset(library, rng):
     assert rotation_error_deg(E[:3, :3], T[:3, :3]) < 1.0
     assert np.linalg.norm(E[:3, 3] - T[:3, 3]) < 0.001
     assert res.rmse_m < 0.003 and res.fitness > 0.8
+
+
+def test_icp_many_gives_each_problem_what_icp_alone_gives(library):
+    """``icp_many`` steps several problems side by side (different models, with and without normals or weights,
+    one that converges, one that runs out of pairs, one that uses every iteration): each result must equal ``icp``
+    of that problem alone, to the bit, on one and on two query threads."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", [40, 10, 30], degrees=True).as_matrix()
+    T[:3, 3] = [0.02, -0.01, 0.7]
+    pts, _ = KINECT.backproject(render_meshes(KINECT, [(library[4].vertices, library[4].faces, T)]).depth)
+    nrm = estimate_normals(pts, 0.01)
+    tree = cKDTree(pts)
+    near = T.copy()
+    near[:3, 3] += [0.004, -0.003, 0.002]
+    away = T.copy()
+    away[:3, 3] += [0.5, 0.0, 0.0]  # nothing within reach: no pairs at all
+    m4, m2 = library[4], library[2]
+    problems = [(m4.points, m4.normals, near, None), (m2.points, None, T, None),
+                (m4.points, m4.normals, away, None), (m4.points[::3], m4.normals[::3], near,
+                                                      np.linspace(0.5, 2.0, len(m4.points[::3])))]
+    cfg = RefineConfig(iterations=12, max_distance=0.02, kernel=0.01)
+    alone = [icp(s, pts, nrm, T0, cfg, source_normals=n, target_tree=tree, viewpoint=np.zeros(3), weights=w)
+             for s, n, T0, w in problems]
+    assert [r.converged for r in alone].count(True) >= 1 and min(r.n_inliers for r in alone) == 0
+    assert max(r.iterations for r in alone) == cfg.iterations and min(r.iterations for r in alone) == 1
+    for workers in (1, 2):
+        many = icp_many([p[0] for p in problems], pts, nrm, [p[2] for p in problems], cfg,
+                        source_normals=[p[1] for p in problems], target_tree=tree, viewpoint=np.zeros(3),
+                        weights=[p[3] for p in problems], workers=workers)
+        for a, b in zip(alone, many):
+            assert np.array_equal(a.T_target_source, b.T_target_source)
+            assert (a.fitness, a.n_inliers, a.iterations, a.converged) == (b.fitness, b.n_inliers, b.iterations,
+                                                                           b.converged)
+            assert a.rmse_m == b.rmse_m or (np.isinf(a.rmse_m) and np.isinf(b.rmse_m))
 
 
 def test_rotation_vector_step_matches_scipy(rng):
