@@ -359,7 +359,7 @@ class Detector:
         v = self.config.verify
         pts = [transform(regs[j].T_target_source, self.library[hyps[j].model_index].points) for j in order]
         ratio = np.array([vers[j].n_violations / max(vers[j].n_supported, 1) for j in order])
-        terms = candidate_terms(scene.points, scene.tree, pts, ratio, v.explain_radius, v.clutter_radius,
+        terms = candidate_terms(scene.points, pts, ratio, v.explain_radius, v.clutter_radius,
                                 plane=scene.plane, scene_normals=scene.normals)
         # two sizes of one shape on one spot are one object, as two poses of one model are
         family = [self._family[hyps[j].model_index].representative for j in order]

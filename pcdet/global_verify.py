@@ -48,7 +48,7 @@ class GlobalTerms:
 SUPPORT_DEG = 30.0  # a surface facing up within this of the supporting plane's normal can carry an object
 
 
-def candidate_terms(scene_points: np.ndarray, scene_tree: cKDTree, model_points: list[np.ndarray],
+def candidate_terms(scene_points: np.ndarray, model_points: list[np.ndarray],
                     violation_ratio: np.ndarray, explain_radius: float, clutter_radius: float, *,
                     plane: "Plane | None" = None, scene_normals: np.ndarray | None = None) -> GlobalTerms:
     """scene_points : (N, 3) m; model_points : per candidate (M_h, 3) surface samples already at the pose (m);
@@ -69,9 +69,7 @@ def candidate_terms(scene_points: np.ndarray, scene_tree: cKDTree, model_points:
             continue
         d, _ = cKDTree(P).query(scene_points[box], distance_upper_bound=explain_radius)
         e = box[np.isfinite(d)]
-        near = scene_tree.query_ball_point(scene_points[e], clutter_radius) if len(e) else []
-        near = np.unique(np.concatenate([np.asarray(n, np.int64) for n in near])) if len(e) else e
-        rest = np.setdiff1d(near, e, assume_unique=True)
+        rest = np.setdiff1d(_within(scene_points, e, clutter_radius), e, assume_unique=True)
         if height is not None:
             base = float((P @ plane.normal).min()) + plane.offset + explain_radius
             support = level & (height <= base)
@@ -80,6 +78,19 @@ def candidate_terms(scene_points: np.ndarray, scene_tree: cKDTree, model_points:
         clutter.append(rest)
     viol = np.array([len(e) for e in explained], float) * np.asarray(violation_ratio, float)
     return GlobalTerms(explained, clutter, viol)
+
+
+def _within(points: np.ndarray, of: np.ndarray, radius: float) -> np.ndarray:
+    """Ascending indices of the (N, 3) ``points`` within ``radius`` (inclusive) of any of ``points[of]``: the points
+    in the box around them, looked up in a KD-tree of those few (one query per point of the box, where a ball
+    query around each of them listed every neighbour many times over)."""
+    if len(of) == 0:
+        return np.zeros(0, np.int64)
+    P = points[of]
+    lo, hi = P.min(axis=0) - radius, P.max(axis=0) + radius
+    box = np.flatnonzero(np.all((points >= lo) & (points <= hi), axis=1))
+    d, _ = cKDTree(P).query(points[box], distance_upper_bound=np.nextafter(radius, np.inf))
+    return box[np.isfinite(d)]
 
 
 def select(terms: GlobalTerms, w_dup: float, w_clutter: float, w_viol: float, max_steps: int = 200, *,

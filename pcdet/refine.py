@@ -142,7 +142,7 @@ def _pairs_many(sources, source_normals, target, target_normals, tree, T, which:
                 weights, workers: int = 1) -> _Pairs:
     """``_pairs`` of the problems ``which`` (indices into the per-problem lists), the per-point steps on all of
     them at once; row for row the same numbers as one ``_pairs`` call per problem."""
-    ps, fronts, ws, n_src = [], [], [], []
+    ps, ws, n_src = [], [], []
     for b in which:
         p = transform(T[b], sources[b])
         if source_normals[b] is not None and viewpoint is not None:

@@ -1,6 +1,5 @@
 """Global hypothesis verification on hand-built scenes whose best subset is known."""
 import numpy as np
-from scipy.spatial import cKDTree
 
 from pcdet.global_verify import candidate_terms, select
 
@@ -12,7 +11,7 @@ def _grid(x0, x1, y0, y1, z=0.5, step=0.004):
 
 def _terms(scene, models, viol=None):
     viol = np.zeros(len(models)) if viol is None else np.asarray(viol, float)
-    return candidate_terms(scene, cKDTree(scene), models, viol, 0.006, 0.015)
+    return candidate_terms(scene, models, viol, 0.006, 0.015)
 
 
 def test_a_model_on_part_of_an_unknown_object_is_dropped():
@@ -100,10 +99,9 @@ def test_what_an_object_stands_on_is_neither_its_clutter_nor_explained_by_it():
     slab = _box(-0.08, -0.04, -0.08, -0.04, -0.005, 0.015)
     plate = _box(0.05, 0.09, -0.09, -0.05, 0.013, 0.017)
     plane = Plane(np.array([0.0, 0.0, 1.0]), 0.0, np.zeros(0, np.int64))
-    tree = cKDTree(scene)
     models = [cube, slab, plate]
-    bare = candidate_terms(scene, tree, models, np.zeros(3), 0.006, 0.015)
-    held = candidate_terms(scene, tree, models, np.zeros(3), 0.006, 0.015, plane=plane, scene_normals=normals)
+    bare = candidate_terms(scene, models, np.zeros(3), 0.006, 0.015)
+    held = candidate_terms(scene, models, np.zeros(3), 0.006, 0.015, plane=plane, scene_normals=normals)
     assert len(bare.clutter[0]) > 50 and len(held.clutter[0]) == 0
     assert np.array_equal(held.clutter[1], bare.clutter[1]) and len(bare.clutter[1]) > len(bare.explained[1])
     # the cube keeps what it explains of itself; the board ring at its base is no longer its own
