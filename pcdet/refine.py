@@ -94,7 +94,7 @@ def icp_many(sources: list[np.ndarray], target: np.ndarray, target_normals: np.n
     for it in range(1, cfg.iterations + 1):
         if not running:
             break
-        pairs = _pairs_many(sources, nrm, target, target_normals, tree, T, running, cfg=cfg, viewpoint=viewpoint,
+        pairs = _pairs_many(sources, nrm, target, target_normals, tree, T, which=running, cfg=cfg, viewpoint=viewpoint,
                             weights=wts, workers=workers)
         J = _jacobian(pairs.p, pairs.n)
         still = []
@@ -113,8 +113,8 @@ def icp_many(sources: list[np.ndarray], target: np.ndarray, target_normals: np.n
                 continue
             still.append(b)
         running = still
-    final = _pairs_many(sources, nrm, target, target_normals, tree, T, list(range(B)), cfg=cfg, viewpoint=viewpoint,
-                        weights=None, workers=workers)
+    final = _pairs_many(sources, nrm, target, target_normals, tree, T, which=list(range(B)), cfg=cfg,
+                        viewpoint=viewpoint, weights=None, workers=workers)
     out = []
     for b, ((a, e), n_src) in enumerate(zip(final.spans, final.n_src)):
         r = final.r[a:e]
@@ -138,7 +138,7 @@ class _Pairs:
     n_src: list[int]
 
 
-def _pairs_many(sources, source_normals, target, target_normals, tree, T, which: list[int], *, cfg, viewpoint,
+def _pairs_many(sources, source_normals, target, target_normals, tree, T, *, which: list[int], cfg, viewpoint,
                 weights, workers: int = 1) -> _Pairs:
     """``_pairs`` of the problems ``which`` (indices into the per-problem lists), the per-point steps on all of
     them at once; row for row the same numbers as one ``_pairs`` call per problem."""
@@ -245,6 +245,6 @@ def _rotvec_matrix(v: np.ndarray) -> np.ndarray:
 
 def _pairs(source, source_normals, target, target_normals, tree, T, *, cfg, viewpoint, weights=None):
     """(p, q, n, w, n_src) of one problem (``_pairs_many``)."""
-    pr = _pairs_many([source], [source_normals], target, target_normals, tree, [T], [0], cfg=cfg,
+    pr = _pairs_many([source], [source_normals], target, target_normals, tree, [T], which=[0], cfg=cfg,
                      viewpoint=viewpoint, weights=[weights])
     return pr.p, pr.q, pr.n, pr.w, pr.n_src[0]
