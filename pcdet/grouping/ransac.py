@@ -17,6 +17,7 @@ from scipy.spatial import cKDTree
 
 from ..align import kabsch_batch, transform
 from ..errors import ConfigError
+from ..graph import common_neighbours
 from ..matching import Candidates
 from ..pairs import scene_pairs
 from ..params import check_positive, param
@@ -97,7 +98,8 @@ class RansacGrouper:
                               0.75 * self.common.inlier_distance)
         graph = _Graph(cs, cm, cn, k, start, deg, nbr)
         if c.guided > 0:
-            graph.common, graph.keys = _second_order(graph.src, deg, nbr)
+            # second-order compatibility (SC^2, Chen et al. 2022): correspondences compatible with both ends
+            graph.common, graph.keys = common_neighbours(start, deg, nbr), graph.src * len(deg) + nbr
         active = (cand.reshape(-1) >= 0) & (deg >= 2)
         labels = np.asarray(scene.labels)
         clabel = np.repeat(labels, k)
@@ -242,7 +244,7 @@ class _Graph:
     deg: np.ndarray
     nbr: np.ndarray
     common: np.ndarray | None = None  # per edge (aligned with nbr): common compatible neighbours of its ends
-    keys: np.ndarray | None = None  # sorted src * M + dst of every edge, for adjacency tests
+    keys: np.ndarray | None = None  # sorted src * M + dst of every edge (nbr ascends in each row), for adjacency tests
     src: np.ndarray = field(init=False, repr=False)  # first end of every edge (aligned with nbr)
 
     def __post_init__(self):
@@ -259,22 +261,6 @@ def _seed_edges(g: _Graph, clabel: np.ndarray) -> dict:
     e, lab = e[order], lab[order]
     cut = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
     return {int(lab[a]): e[a:b] for a, b in zip(cut, np.r_[cut[1:], len(e)])}
-
-
-def _second_order(src: np.ndarray, deg: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per edge of the CSR compatibility graph, the number of correspondences compatible with both its ends
-    (SC^2, Chen et al. 2022), and the sorted edge keys src * M + dst (``nbr`` is sorted within each row; ``src``
-    is each edge's first end, ``_Graph.src``)."""
-    import scipy.sparse as sparse
-
-    M = len(deg)
-    keys = src * M + nbr
-    A = sparse.csr_matrix((np.ones(len(nbr), np.float32), nbr, np.r_[0, np.cumsum(deg)]), shape=(M, M))
-    # A^2 counts common neighbours of every pair; masked by A, only the edges' with any remain, and A added back
-    # gives every edge 1 + its count, on A's own (row-sorted) entries: aligned with nbr, no search needed
-    S = A.multiply(A @ A).tocsr() + A
-    S.sort_indices()
-    return (S.data - 1).astype(np.float64), keys
 
 
 @dataclass
