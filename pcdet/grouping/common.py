@@ -10,6 +10,7 @@ import numpy as np
 import scipy.sparse as sparse
 
 from ..align import kabsch_shared
+from ..graph import length_matches
 from ..pairs import ScenePairs, pair_features
 
 
@@ -56,30 +57,11 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
         keep = sel[angles_agree(pair[sel], ma[sel], mb[sel])]
         return ia[keep], ib[keep]
 
-    # one coordinate array per axis with a NaN at the end, which a missing candidate (-1) reads: its length is
-    # NaN and fails the length test, as does the same model keypoint at both ends (length 0, and lo2 >= 0)
-    mx, my, mz = (np.append(mp[:, i], np.float32(np.nan)) for i in range(3))
-
     def test_rows(rows):  # every candidate of a against every candidate of b, for a block of scene pairs
-        ca, cb = cand[a[rows]], cand[b[rows]]  # (n, k)
-        # coordinates gathered once per block, one array per axis: the length test runs on (n, k) arrays
-        ax, ay, az, bx, by, bz = mx[ca], my[ca], mz[ca], mx[cb], my[cb], mz[cb]
-        lo, hi = lo2[rows, None], hi2[rows, None]
-        out_a, out_b = [], []
-        for r1 in range(k):
-            d = bx - ax[:, r1, None]
-            l2 = d * d
-            d = by - ay[:, r1, None]
-            l2 += d * d
-            d = bz - az[:, r1, None]
-            l2 += d * d
-            sel = np.flatnonzero((l2 > lo) & (l2 < hi))
-            p, r2 = sel // k, sel % k
-            good = angles_agree(rows[p], ca[p, r1], cb[p, r2])
-            p, r2 = p[good], r2[good]
-            out_a.append(a[rows[p]] * k + r1)
-            out_b.append(b[rows[p]] * k + r2)
-        return np.concatenate(out_a), np.concatenate(out_b)
+        # the length test first (graph.length_matches, compiled where it could be built), the angles for what passes
+        p, ia, ib = length_matches(a[rows], b[rows], lo2[rows], hi2[rows], cand, mp)
+        keep = angles_agree(rows[p], flat[ia], flat[ib])
+        return ia[keep], ib[keep]
 
     if (cand >= 0).mean() > 0.6:  # most candidates valid: blocks of scene pairs, all k x k candidate pairs
         step = max(1, (1 << 19) // k)
