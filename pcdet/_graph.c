@@ -1,14 +1,16 @@
-/* Compiled kernels of pcdet.graph: the common neighbours of every edge of a sparse undirected graph, and the length
- * test of the candidate pairs a compatibility graph is built from.
+/* Compiled kernels of pcdet.graph (the Python side checks dtypes and documents both).
  *
- * The graph is in CSR form: row i lists its neighbours nbr[start[i] : start[i] + deg[i]], ascending, never i
- * itself, and every edge (i, j) appears in both rows (a ValueError otherwise). common_neighbours(start, deg, nbr, out) writes into out[e] (float64, one per
- * entry of nbr) the number of vertices adjacent to both ends of entry e.
- *
+ * common_neighbours(start, deg, nbr, out): for a graph in CSR form (row i lists its neighbours
+ * nbr[start[i] : start[i] + deg[i]], ascending, never i itself, and every edge (i, j) appears in both rows; a
+ * ValueError otherwise), out[e] (float64, one per entry of nbr) = the vertices adjacent to both ends of entry e.
  * Each row i marks its neighbours in a byte array of the vertices, then for each later neighbour j (j > i) counts
  * the marked vertices in row j: about sum(deg^2) / 2 reads of an array that stays in cache, where a sparse product
  * A @ A visits sum(deg^2) paths and writes them all before the mask keeps the edges'. The entry (j, i) takes the
- * count of (i, j). The interpreter lock is released meanwhile.
+ * count of (i, j).
+ *
+ * length_matches(...): the length test of the candidate pairs a compatibility graph is built from (below).
+ *
+ * Both release the interpreter lock while they work.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -25,7 +27,7 @@ static int64_t find(const int64_t *row, int64_t n, int64_t v) {
     return lo;
 }
 
-static int count(int64_t M, const int64_t *start, const int64_t *deg, const int64_t *nbr, int64_t E, double *out) {
+static int count(int64_t M, const int64_t *start, const int64_t *deg, const int64_t *nbr, double *out) {
     unsigned char *mark = calloc((size_t)(M > 0 ? M : 1), 1);
     if (!mark) return -1;
     for (int64_t i = 0; i < M; i++) {
@@ -52,7 +54,6 @@ static int count(int64_t M, const int64_t *start, const int64_t *deg, const int6
             out[start[i] + a] = out[start[j] + at];
         }
     }
-    (void)E;
     return 0;
 }
 
@@ -79,7 +80,7 @@ static PyObject *common_neighbours(PyObject *self, PyObject *args) {
     int ok, rc = 0;
     Py_BEGIN_ALLOW_THREADS
     ok = valid(M, start, deg, nbr, E);
-    if (ok) rc = count(M, start, deg, nbr, E, o.buf);
+    if (ok) rc = count(M, start, deg, nbr, o.buf);
     Py_END_ALLOW_THREADS
     if (!ok) {
         PyErr_SetString(PyExc_ValueError, "common_neighbours: not a CSR graph with ascending rows and no loops");
