@@ -21,7 +21,7 @@ except ImportError:  # pragma: no cover - exercised where no compiler was at han
 
 
 def compiled() -> bool:
-    """Whether the compiled kernel is in use (otherwise scipy's sparse product is)."""
+    """Whether the compiled kernels are in use (otherwise numpy and scipy compute the same results)."""
     return _graph is not None
 
 
