@@ -61,15 +61,9 @@ def candidate_terms(scene_points: np.ndarray, model_points: list[np.ndarray],
         level = scene_normals @ plane.normal >= np.cos(np.radians(SUPPORT_DEG))
     explained, clutter = [], []
     for P in model_points:
-        lo, hi = P.min(axis=0) - explain_radius, P.max(axis=0) + explain_radius
-        box = np.flatnonzero(np.all((scene_points >= lo) & (scene_points <= hi), axis=1))
-        if len(box) == 0:
-            explained.append(np.zeros(0, np.int64))
-            clutter.append(np.zeros(0, np.int64))
-            continue
-        d, _ = cKDTree(P).query(scene_points[box], distance_upper_bound=explain_radius)
-        e = box[np.isfinite(d)]
-        rest = np.setdiff1d(_within(scene_points, e, clutter_radius), e, assume_unique=True)
+        e = _near(scene_points, P, explain_radius)
+        rest = np.setdiff1d(_near(scene_points, scene_points[e], clutter_radius, inclusive=True), e,
+                            assume_unique=True)
         if height is not None:
             base = float((P @ plane.normal).min()) + plane.offset + explain_radius
             support = level & (height <= base)
@@ -80,16 +74,16 @@ def candidate_terms(scene_points: np.ndarray, model_points: list[np.ndarray],
     return GlobalTerms(explained, clutter, viol)
 
 
-def _within(points: np.ndarray, of: np.ndarray, radius: float) -> np.ndarray:
-    """Ascending indices of the (N, 3) ``points`` within ``radius`` (inclusive) of any of ``points[of]``: the points
-    in the box around them, looked up in a KD-tree of those few (one query per point of the box, where a ball
-    query around each of them listed every neighbour many times over)."""
-    if len(of) == 0:
+def _near(points: np.ndarray, centres: np.ndarray, radius: float, *, inclusive: bool = False) -> np.ndarray:
+    """Ascending indices of the (N, 3) ``points`` closer than ``radius`` (m; or as close, ``inclusive``) to any of
+    the (C, 3) ``centres``: the points in the box around the centres, looked up in a KD-tree of the centres (one
+    query per point of the box, where a ball query around each centre listed every neighbour many times over)."""
+    if len(centres) == 0:
         return np.zeros(0, np.int64)
-    P = points[of]
-    lo, hi = P.min(axis=0) - radius, P.max(axis=0) + radius
+    lo, hi = centres.min(axis=0) - radius, centres.max(axis=0) + radius
     box = np.flatnonzero(np.all((points >= lo) & (points <= hi), axis=1))
-    d, _ = cKDTree(P).query(points[box], distance_upper_bound=np.nextafter(radius, np.inf))
+    bound = np.nextafter(radius, np.inf) if inclusive else radius
+    d, _ = cKDTree(centres).query(points[box], distance_upper_bound=bound)
     return box[np.isfinite(d)]
 
 
