@@ -47,6 +47,19 @@ def kabsch_shared(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.n
     return _rigid_from_covariance(H, cs, cd)
 
 
+def kabsch_from_sums(sums: np.ndarray) -> np.ndarray:
+    """Kabsch from weighted sums: sums (B, 16) holding, for each problem, sum w, sum w src (3), sum w dst (3) and
+    sum w src_i dst_j (9, row i) -> (B, 4, 4) ``T_dst_src``. The sum of the weights must be positive."""
+    s = np.asarray(sums, float).reshape(-1, 16)
+    wsum = s[:, 0]
+    if np.any(wsum <= 0):
+        raise ValueError("kabsch weights sum to zero")
+    cs = s[:, 1:4] / wsum[:, None]
+    cd = s[:, 4:7] / wsum[:, None]
+    H = s[:, 7:].reshape(-1, 3, 3) / wsum[:, None, None] - cs[:, :, None] * cd[:, None, :]
+    return _rigid_from_covariance(H, cs, cd)
+
+
 def _rigid_from_covariance(H: np.ndarray, cs: np.ndarray, cd: np.ndarray) -> np.ndarray:
     """(B, 4, 4) rigid transforms from B cross-covariances H (B, 3, 3) of centred source/target points and the
     centroids cs, cd (B, 3): R = V diag(1, 1, d) U^T with d = sign det(V U^T), so never a reflection."""

@@ -347,30 +347,6 @@ def test_refit_batch_pulls_poses_onto_their_inliers_and_ignores_far_matches(rng)
         assert np.isin(np.arange(200), inl).all() and np.isin(wrong, inl).sum() <= 40
 
 
-def test_inliers_measured_within_reach_equal_measuring_every_correspondence(rng):
-    """``inliers`` measures only the correspondences whose scene point lies within reach of the placed model: on
-    a scene ten times the model's size (where that skips most) and on one the model's size (where it measures
-    all), the sets equal the brute-force ``pose_distances < tau`` for every pose."""
-    from pcdet.grouping import common
-
-    model = rng.normal(0, 0.03, (400, 3))
-    for extent in (1.0, 0.1):
-        S, k = 3000, 4
-        scene = rng.random((S, 3)) * extent
-        cs = np.repeat(scene, k, axis=0)  # each scene keypoint's k candidates are consecutive rows
-        cm = model[rng.integers(0, len(model), S * k)]
-        T = np.stack([random_pose(rng) for _ in range(40)])
-        T[:, :3, 3] = rng.random((40, 3)) * extent
-        T[0] = np.eye(4)
-        cs[:400] = (T[5][:3, :3] @ cm[:400].T).T + T[5][:3, 3] + rng.normal(0, 0.003, (400, 3))  # one true pose
-        reach = common._in_reach(T, cm, cs, 0.01)
-        assert (reach is None) == (extent == 0.1)
-        brute = [np.flatnonzero(row < 0.01) for row in common.pose_distances(T, cm, cs)]
-        got = common.inliers(T, cm, cs, 0.01)
-        assert all(np.array_equal(a, b) for a, b in zip(got, brute))
-        assert len(got[5]) >= 300
-
-
 def test_scene_pairs_are_the_same_when_every_pair_is_within_reach(rng):
     """``scene_pairs`` takes every pair at once when the radius covers the points' extent: the pairs (a < b) and
     their features equal those the KD-tree search gives for a radius a hair below the extent (which lists them

@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sparse
 
-from ..align import kabsch_shared
 from ..graph import length_matches
 from ..pairs import ScenePairs, pair_features
+from ..residuals import tukey_step, within
 
 
 def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarray, model_nrm: np.ndarray, *,
@@ -168,51 +168,10 @@ def distinct_surfaces(T: np.ndarray, order, points: np.ndarray, diameter: float,
     return order[kept]
 
 
-def pose_distances(T: np.ndarray, cm: np.ndarray, cs: np.ndarray) -> np.ndarray:
-    """(B, M) distances (m) between the model points ``cm`` (M, 3) placed by each pose T (B, 4, 4) and their
-    scene points ``cs`` (M, 3). One product per coordinate keeps every array (B, M) and contiguous."""
-    mh = np.vstack([cm.T, np.ones(len(cm))])  # (4, M) homogeneous model points
-    e = T[:, 0, :] @ mh - cs[:, 0]
-    d2 = e * e
-    for i in (1, 2):
-        e = T[:, i, :] @ mh - cs[:, i]
-        d2 += e * e
-    return np.sqrt(d2)
-
-
-def _in_reach(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, r: float) -> list[np.ndarray] | None:
-    """For each pose T (B, 4, 4), the indices (ascending) of the correspondences (cm -> cs, (M, 3) each) that can
-    lie within ``r`` of it: those whose scene point is within r of the ball that holds every placed model point
-    (|T cm - cs| < r needs |cs - T c| < R + r, with R the model points' largest distance from their centre c).
-    None when there are few correspondences or a third or more are in reach of an average pose: then measuring
-    them all at once is cheaper than one pose at a time.
-
-    The balls are tested on the distinct scene points only: a scene keypoint's candidates are consecutive rows
-    of cs (as ``correspondence_points`` lays them out), so each run of equal rows is one point."""
-    if len(cm) < 4000:
-        return None
-    c = (cm.min(axis=0) + cm.max(axis=0)) / 2
-    reach = np.sqrt(np.max(np.einsum("ij,ij->i", cm - c, cm - c))) + r + 1e-6  # a micrometre to spare
-    new = np.r_[True, np.any(cs[1:] != cs[:-1], axis=1)]
-    U, owner = cs[new], np.cumsum(new) - 1
-    centres = np.einsum("bij,j->bi", T[:, :3, :3], c) + T[:, :3, 3]
-    d2 = np.zeros((len(T), len(U)))
-    for i in range(3):
-        d2 += (U[None, :, i] - centres[:, None, i]) ** 2
-    inside = d2 < reach * reach
-    if inside.mean() > 1 / 3:
-        return None
-    return [np.flatnonzero(row[owner]) for row in inside]
-
-
 def inliers(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> list[np.ndarray]:
     """For each pose T (B, 4, 4), the indices (ascending) of the correspondences (model cm -> scene cs, (M, 3)
-    each) whose placed model point lies within ``tau`` (m) of its scene point. Only the correspondences within
-    reach of the placed model are measured (``_in_reach``): the same sets as measuring all of them."""
-    reach = _in_reach(T, cm, cs, tau)
-    if reach is None:
-        return [np.flatnonzero(row < tau) for row in pose_distances(T, cm, cs)]
-    return [idx[pose_distances(T[b:b + 1], cm[idx], cs[idx])[0] < tau] for b, idx in enumerate(reach)]
+    each) whose placed model point lies within ``tau`` (m) of its scene point (``residuals.within``)."""
+    return within(T, cm, cs, tau)
 
 
 def refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -222,21 +181,16 @@ def refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tu
 
     The weighting rounds see only the correspondences within ``3 tau`` of some starting pose (the others are
     far outside every kernel); the inliers are taken among all of them."""
-    T = T.copy()
+    T = np.array(T, dtype=np.float64)
     near = np.zeros(len(cm), bool)  # marked, not sorted: the union of the poses' sets
-    for idx in inliers(T, cm, cs, 3 * tau):
+    for idx in within(T, cm, cs, 3 * tau):
         near[idx] = True
     sm, ss = cm[near], cs[near]
-    for n, scale in enumerate((1.0, 1.0, 0.75, 0.5, 0.5)):
-        d = pose_distances(T, sm, ss)
-        c = tau * scale
-        inside = d < c
-        ok = inside.sum(axis=1) >= 3
+    for scale in (1.0, 1.0, 0.75, 0.5, 0.5):
+        ok, T = tukey_step(T, sm, ss, tau * scale)
         if not ok.any():
             break
-        w = np.where(inside[ok], (1 - (d[ok] / c) ** 2) ** 2, 0.0) + 1e-12
-        T[ok] = kabsch_shared(sm, ss, w)
-    return T, inliers(T, cm, cs, tau)
+    return T, within(T, cm, cs, tau)
 
 
 def ramp(counts: np.ndarray) -> np.ndarray:
