@@ -256,3 +256,16 @@ def test_register_warns_when_the_inputs_do_not_match(tmp_path):
     res = _cli("register", tmp_path / "box.ply", tmp_path / "ball.ply")
     assert res.exit_code == 0, res.output
     assert "warning: after alignment only" in res.output and "may not be the same object" in res.output
+
+
+def test_version_names_the_compiled_kernels(monkeypatch):
+    """``pcdet version`` prints the version, then which compiled kernels are in use; one that was not built is
+    named, with what that means."""
+    from pcdet import __version__, residuals
+
+    res = _cli("version")
+    assert res.exit_code == 0
+    assert res.output.splitlines() == [__version__, "compiled kernels: graph, residuals"]
+    monkeypatch.setattr(residuals, "_residuals", None)
+    line = _cli("version").output.splitlines()[1]
+    assert line.startswith("compiled kernels: graph (not built: residuals; numpy computes the same results")
