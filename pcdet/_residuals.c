@@ -51,8 +51,8 @@ static inline void add(double *s, const double *p, const double *q, double w) {
 /* The centre of the model points' bounding box and the squared radius around its placed image within which a
  * scene point can lie within r of its placed model point: (largest distance of a model point from the centre
  * + r + a micrometre)^2. */
-static void bounds(const double *P, int64_t M, double *lo, double *hi, double *c, double *reach2, double r) {
-    double R2 = 0;
+static void bounds(const double *P, int64_t M, double *c, double *reach2, double r) {
+    double lo[3], hi[3], R2 = 0;
     for (int i = 0; i < 3; i++) {
         lo[i] = INFINITY;
         hi[i] = -INFINITY;
@@ -92,8 +92,8 @@ static PyObject *within(PyObject *self, PyObject *args) {
     int64_t n = 0, cap = 0, *idx = NULL, *counts = malloc((size_t)(B > 0 ? B : 1) * sizeof(int64_t));
     int nomem = counts == NULL;
     Py_BEGIN_ALLOW_THREADS
-    double lo[3], hi[3], c[3], reach2;
-    bounds(P, M, lo, hi, c, &reach2, r);
+    double c[3], reach2;
+    bounds(P, M, c, &reach2, r);
     for (int64_t b = 0; b < B && !nomem; b++) {
         const double *t = T + 16 * b;
         double o[3];
@@ -147,8 +147,8 @@ static PyObject *tukey_sums(PyObject *self, PyObject *args) {
     /* every correspondence's share of the 1e-12 weight, summed once for all poses */
     double all[16] = {0};
     for (int64_t m = 0; m < M; m++) add(all, P + 3 * m, Q + 3 * m, 1.0);
-    double lo[3], hi[3], ctr[3], reach2;
-    bounds(P, M, lo, hi, ctr, &reach2, c);
+    double ctr[3], reach2;
+    bounds(P, M, ctr, &reach2, c);
     for (int64_t b = 0; b < B; b++) {
         const double *t = T + 16 * b;
         double s[16] = {0}, o[3];

@@ -6,8 +6,9 @@ Shapes: T (B, 4, 4) poses (model to scene); cm, cs (M, 3) model and scene points
 residual of correspondence m under pose b is ``|R_b cm_m + t_b - cs_m|``.
 
 ``within`` and ``tukey_step`` run a small compiled kernel (``pcdet/_residuals.c``, built by ``setup.py`` where a C
-compiler is at hand) and otherwise numpy. The two sum in different orders, so their residuals can differ in the last
-bit and their poses by about 1e-16 relative; the sets and poses are otherwise the same (``tests/test_residuals.py``).
+compiler is at hand) and otherwise numpy. The two sum in different orders, so a residual can differ in the last bit
+(a set only where it lies that close to the radius) and a step's pose by up to about 1e-12 (m, and per rotation
+entry; ``tests/test_residuals.py``).
 """
 from __future__ import annotations
 

@@ -168,12 +168,6 @@ def distinct_surfaces(T: np.ndarray, order, points: np.ndarray, diameter: float,
     return order[kept]
 
 
-def inliers(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> list[np.ndarray]:
-    """For each pose T (B, 4, 4), the indices (ascending) of the correspondences (model cm -> scene cs, (M, 3)
-    each) whose placed model point lies within ``tau`` (m) of its scene point (``residuals.within``)."""
-    return within(T, cm, cs, tau)
-
-
 def refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tuple[np.ndarray, list[np.ndarray]]:
     """Robust refit of B poses (B, 4, 4) on correspondences (model cm -> scene cs, (M, 3) each): Tukey-weighted
     Kabsch with the kernel shrinking from ``tau`` to ``tau / 2``, so that wrong matches that happen to fall

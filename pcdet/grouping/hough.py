@@ -38,7 +38,8 @@ from ..align import kabsch
 from ..errors import ConfigError
 from ..matching import Candidates
 from ..params import check_positive, param
-from .common import correspondence_points, distinct_poses, inliers, ramp, refit_batch
+from ..residuals import within
+from .common import correspondence_points, distinct_poses, ramp, refit_batch
 from .hypothesis import Hypothesis
 
 if TYPE_CHECKING:
@@ -145,7 +146,7 @@ class HoughGrouper:
         valid = np.flatnonzero(flat >= 0)
         cands, tau = np.array(cands), self.common.inlier_distance
         if len(cands) > 4 * c.max_groups:  # the robust refit is for the poses that already explain most matches
-            count = np.array([len(i) for i in inliers(cands, cm[valid], cs[valid], tau)])
+            count = np.array([len(i) for i in within(cands, cm[valid], cs[valid], tau)])
             best = np.sort(np.lexsort((np.arange(len(count)), -count))[: 4 * c.max_groups])
             cands, group_sizes = cands[best], [group_sizes[i] for i in best]
         T, inls = refit_batch(cands, cm[valid], cs[valid], tau)
