@@ -497,8 +497,6 @@ def test_second_order_counts_are_the_common_neighbours_of_each_edge(rng):
 def test_common_neighbours_refuses_what_is_not_a_symmetric_csr_graph():
     """The kernel reads raw memory: a row out of order, a vertex out of range, a loop, an edge given one way only,
     or starts that do not follow the rows are refused with a ValueError, never read past."""
-    import pytest
-
     from pcdet.graph import common_neighbours
 
     ok = (np.array([0, 1, 3]), np.array([1, 2, 1]), np.array([1, 0, 2, 1]))  # the path 0 - 1 - 2
@@ -517,8 +515,6 @@ def test_length_matches_compiled_and_numpy_keep_the_same_pairs(rng):
     same order, on random tables with missing candidates (-1), repeated model keypoints (length 0) and bounds drawn
     from the pairs' own squared lengths (so that some fall exactly on a bound); out-of-range rows or candidates
     are refused."""
-    import pytest
-
     from pcdet.graph import compiled, length_matches
 
     assert compiled(), "pcdet._graph was not built (is a C compiler installed?)"

@@ -175,7 +175,7 @@ def refit_batch(T: np.ndarray, cm: np.ndarray, cs: np.ndarray, tau: float) -> tu
 
     The weighting rounds see only the correspondences within ``3 tau`` of some starting pose (the others are
     far outside every kernel); the inliers are taken among all of them."""
-    T = np.array(T, dtype=np.float64)
+    T = np.asarray(T, dtype=np.float64)  # not written to: each step returns new poses
     near = np.zeros(len(cm), bool)  # marked, not sorted: the union of the poses' sets
     for idx in within(T, cm, cs, 3 * tau):
         near[idx] = True
