@@ -536,3 +536,60 @@ def test_length_matches_compiled_and_numpy_keep_the_same_pairs(rng):
         length_matches(a, np.r_[b[:-1], S], lo2, hi2, cand, pts)
     with pytest.raises(ValueError):
         length_matches(a, b, lo2, hi2, np.where(cand == 0, K, cand), pts)
+
+
+def test_compatible_pairs_decides_the_angle_test_as_numpy_does(rng, monkeypatch):
+    """The compiled angle test (``graph.compatible_pairs``) works in double and must give numpy's float32 verdicts:
+    scene angles placed on the tolerance's edge of a model pair's own angles (exactly on it, a float32 step either
+    side, or 50 steps) make many calls close. Every pair it says agrees passes numpy's test (``|f - arccos(c)| <
+    tol`` in float32, as ``compatibility_graph`` runs it), every pair it drops fails it, and the calls it leaves to
+    numpy are few but not none. A NaN angle decides nothing. The graph built with the kernel is the numpy-only
+    graph, entry for entry."""
+    from pcdet.graph import compatible_pairs, compiled
+    from pcdet.grouping import common
+    from pcdet.pairs import scene_pairs
+
+    assert compiled(), "pcdet._graph was not built (is a C compiler installed?)"
+    S, k, K, P = 200, 3, 60, 4000
+    mp = rng.uniform(0, 0.1, (K, 3)).astype(np.float32)
+    mn = rng.normal(size=(K, 3))
+    mn = (mn / np.linalg.norm(mn, axis=1, keepdims=True)).astype(np.float32)
+    mn[1], mn[2] = mn[0], -mn[0]  # parallel and opposite normals: cosines at +-1, where arc cosines are most sensitive
+    cand = rng.integers(-1, K, (S, k))
+    cand[:30, 0] = rng.integers(0, 3, 30)
+    a, b = np.divmod(rng.choice(S * S, P, replace=False), S)  # each scene pair once
+    tol = np.float32(np.radians(12.0))
+    ma, mb = np.maximum(cand[a, 0], 0), np.maximum(cand[b, 0], 0)
+    own = pair_features(mp[ma], mn[ma], mp[mb], mn[mb])[:, [3, 1, 2]]
+    side = np.where(rng.random((P, 3)) < 0.8, 0.0, rng.choice([-1.0, 1.0], (P, 3)))  # mostly inside: many agree
+    nudge = rng.choice([0.0, 1.0, -1.0, 50.0, -50.0], (P, 3))
+    angles = (own + side * tol + nudge * np.spacing(tol)).astype(np.float32)
+    angles[::97, 0] = np.nan
+    lo2, hi2 = np.zeros(P, np.float32), np.full(P, np.float32(1.0))
+    ia, ib, p, ua, ub = compatible_pairs(a, b, lo2, hi2, angles, tol, cand, mp, mn)
+
+    flat = cand.reshape(-1)
+    pp, r1, r2 = (x.ravel() for x in np.meshgrid(np.arange(P), np.arange(k), np.arange(k), indexing="ij"))
+    ca, cb = a[pp] * k + r1, b[pp] * k + r2
+    present = (flat[ca] >= 0) & (flat[cb] >= 0) & (flat[ca] != flat[cb])
+    pp, ca, cb = pp[present], ca[present], cb[present]
+    fm = pair_features(mp[flat[ca]], mn[flat[ca]], mp[flat[cb]], mn[flat[cb]])[:, [3, 1, 2]]
+    agree = (np.abs(angles[pp] - fm) < tol).all(axis=1)
+    key = ca * (S * k) + cb  # a scene pair's correspondences name it: each (a, b) is drawn once
+    sure, left = np.isin(key, ia * (S * k) + ib), np.isin(key, ua * (S * k) + ub)
+    assert len(np.unique(ia * (S * k) + ib)) == len(ia) and not (sure & left).any()
+    assert agree.sum() > 300 and (~agree).sum() > 300
+    assert agree[sure].all()  # what it keeps, numpy keeps
+    assert not agree[~sure & ~left].any()  # what it drops, numpy drops
+    assert 0 < left.sum() < 0.1 * len(key)
+    assert not np.isnan(angles[pp[sure]]).any() and np.isnan(angles[p]).any()
+
+    pts = rng.uniform(0, 0.1, (S, 3))
+    nrm = rng.normal(size=(S, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    pairs = scene_pairs(pts, nrm, np.zeros(S, int), 0.1)
+    kw = dict(diameter=0.1, edge_tolerance=0.02, normal_tolerance_deg=25.0)
+    with_kernel = common.compatibility_graph(pairs, cand, mp, mn, **kw)
+    monkeypatch.setattr(common, "compiled", lambda: False)
+    assert all(np.array_equal(x, y) for x, y in zip(with_kernel, common.compatibility_graph(pairs, cand, mp, mn, **kw)))
+    assert len(with_kernel[2]) > 1000

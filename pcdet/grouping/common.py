@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sparse
 
-from ..graph import length_matches
+from ..graph import compatible_pairs, compiled, length_matches
 from ..pairs import ScenePairs, pair_features
 from ..residuals import tukey_step, within
 
@@ -37,6 +37,7 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
     flat = cand.reshape(-1)
     lo2 = np.maximum(fs[:, 0] - edge_tolerance, 0) ** 2  # squared bounds: no square root per candidate pair
     hi2 = (fs[:, 0] + edge_tolerance) ** 2
+    angles = fs[:, [3, 1, 2]]  # in the order the angle test takes them
     def angles_agree(pair, ma, mb):  # (n,) bool: the three angles of scene and model pairs agree
         # the normals' angle first: it needs no pair vector and refuses more than half; the other two after
         n1, n2 = mn[ma], mn[mb]
@@ -58,7 +59,12 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
         return ia[keep], ib[keep]
 
     def test_rows(rows):  # every candidate of a against every candidate of b, for a block of scene pairs
-        # the length test first (graph.length_matches, compiled where it could be built), the angles for what passes
+        if compiled():  # both tests in the kernel, which leaves numpy the angle tests too close to call
+            ia, ib, p, ua, ub = compatible_pairs(a[rows], b[rows], lo2[rows], hi2[rows], angles[rows], tol, cand,
+                                                 mp, mn)
+            keep = angles_agree(rows[p], flat[ua], flat[ub])
+            return np.concatenate([ia, ua[keep]]), np.concatenate([ib, ub[keep]])
+        # the length test first (numpy's length_matches), the angles for what passes
         p, ia, ib = length_matches(a[rows], b[rows], lo2[rows], hi2[rows], cand, mp)
         keep = angles_agree(rows[p], flat[ia], flat[ib])
         return ia[keep], ib[keep]
