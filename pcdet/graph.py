@@ -93,8 +93,8 @@ def length_matches(a: np.ndarray, b: np.ndarray, lo2: np.ndarray, hi2: np.ndarra
 
 
 
-def compatible_pairs(a: np.ndarray, b: np.ndarray, lo2: np.ndarray, hi2: np.ndarray, angles: np.ndarray, tol: float,
-                     cand: np.ndarray, points: np.ndarray, normals: np.ndarray
+def compatible_pairs(a: np.ndarray, b: np.ndarray, lo2: np.ndarray, hi2: np.ndarray, cand: np.ndarray,
+                     points: np.ndarray, *, normals: np.ndarray, angles: np.ndarray, tol: float
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The candidate pairs of ``length_matches`` sorted by the angle test, in the compiled kernel (which must be
     built: ``compiled()``). A pair's angles agree when ``|f - arccos(c)| < tol`` for each of the scene pair's angles

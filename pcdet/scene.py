@@ -11,6 +11,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .cloud import Plane, voxel_downsample
+from .grid import GridTree
 from .lrf import shot_lrf
 
 V = TypeVar("V")
@@ -85,7 +86,8 @@ class Scene:
     """One frame's scene, as the stages after preprocessing see it.
 
     points, normals : (N, 3) voxel-grid scene points (m) and normals facing the camera; labels : (N,) cluster of
-    each; plane : the removed supporting plane or None; tree : KD-tree of the points (None when empty);
+    each; plane : the removed supporting plane or None; tree : KD-tree of the points (``grid.GridTree``: its
+    short-radius nearest-point queries run on a hashed grid; None when empty);
     keypoints : (K,) int64 indices into points; descriptors : (K, 33) float32 FPFH of each;
     lrf_radius : m, support of the keypoints' local reference frames;
     levels : ``{step: positions in keypoints}`` of the keypoints chosen for each grouping step (m) when they were
@@ -105,7 +107,7 @@ class Scene:
         self.keypoints, self.descriptors, self.colours = keypoints, descriptors, colours
         self.lrf_radius = lrf_radius
         self.levels = levels or {}
-        self.tree = cKDTree(points) if len(points) else None
+        self.tree = GridTree(points) if len(points) else None  # ICP's and the overlap's searches on a grid
         self._memo = _Memo()
         self._lrf_lock = threading.Lock()
         self._lrf = np.full((len(keypoints), 3, 3), np.nan)

@@ -566,7 +566,7 @@ def test_compatible_pairs_decides_the_angle_test_as_numpy_does(rng, monkeypatch)
     angles = (own + side * tol + nudge * np.spacing(tol)).astype(np.float32)
     angles[::97, 0] = np.nan
     lo2, hi2 = np.zeros(P, np.float32), np.full(P, np.float32(1.0))
-    ia, ib, p, ua, ub = compatible_pairs(a, b, lo2, hi2, angles, tol, cand, mp, mn)
+    ia, ib, p, ua, ub = compatible_pairs(a, b, lo2, hi2, cand, mp, normals=mn, angles=angles, tol=tol)
 
     flat = cand.reshape(-1)
     pp, r1, r2 = (x.ravel() for x in np.meshgrid(np.arange(P), np.arange(k), np.arange(k), indexing="ij"))

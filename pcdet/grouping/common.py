@@ -60,8 +60,8 @@ def compatibility_graph(pairs: ScenePairs, cand: np.ndarray, model_pts: np.ndarr
 
     def test_rows(rows):  # every candidate of a against every candidate of b, for a block of scene pairs
         if compiled():  # both tests in the kernel, which leaves numpy the angle tests too close to call
-            ia, ib, p, ua, ub = compatible_pairs(a[rows], b[rows], lo2[rows], hi2[rows], angles[rows], tol, cand,
-                                                 mp, mn)
+            ia, ib, p, ua, ub = compatible_pairs(a[rows], b[rows], lo2[rows], hi2[rows], cand, mp, normals=mn,
+                                                 angles=angles[rows], tol=tol)
             keep = angles_agree(rows[p], flat[ua], flat[ub])
             return np.concatenate([ia, ua[keep]]), np.concatenate([ib, ub[keep]])
         # the length test first (numpy's length_matches), the angles for what passes

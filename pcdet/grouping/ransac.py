@@ -18,6 +18,7 @@ from scipy.spatial import cKDTree
 from ..align import kabsch_batch, transform
 from ..errors import ConfigError
 from ..graph import common_neighbours
+from ..grid import GridTree
 from ..matching import Candidates
 from ..pairs import scene_pairs
 from ..params import check_positive, param
@@ -269,7 +270,7 @@ class Overlap:
     the number of model samples facing the camera that lie within ``distance`` of a scene point.
 
     points, normals : (P, 3) model samples and outward normals (model frame, m); scene_tree : KD-tree of the
-    scene points (camera frame).
+    scene points (camera frame); a ``grid.GridTree`` answers on its grid.
     """
 
     points: np.ndarray
@@ -282,5 +283,8 @@ class Overlap:
         P = np.matmul(self.points, T[:, :3, :3].transpose(0, 2, 1)) + T[:, None, :3, 3]  # (B, P, 3)
         N = np.matmul(self.normals, T[:, :3, :3].transpose(0, 2, 1))
         front = np.einsum("bpi,bpi->bp", N, P) < 0
-        d, _ = self.scene_tree.query(P[front], distance_upper_bound=self.distance)
-        return np.bincount(np.nonzero(front)[0][np.isfinite(d)], minlength=len(T))
+        if isinstance(self.scene_tree, GridTree):  # the grid stops at the first scene point within reach
+            hit = self.scene_tree.within(P[front], self.distance)
+        else:
+            hit = np.isfinite(self.scene_tree.query(P[front], distance_upper_bound=self.distance)[0])
+        return np.bincount(np.nonzero(front)[0][hit], minlength=len(T))

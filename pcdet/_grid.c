@@ -1,0 +1,164 @@
+/* Compiled kernel of pcdet.grid (the Python side builds the grid, checks dtypes and documents it).
+ *
+ * A grid: N points (N, 3) float64 sorted by cell, the C distinct cells' packed keys (C,) int64 in that order, start
+ * (C + 1,) int64 (cell c holds the sorted points start[c] .. start[c + 1] - 1), and an open-addressing hash table
+ * (T,) int64, T a power of two, holding c + 1 for each cell (0: empty slot). A point's cell is
+ * floor(x * inv), floor(y * inv), floor(z * inv) with inv = 1 / cell; its key packs the three in 21 bits each
+ * (offset by 2^20; grid.py keeps them in range).
+ *
+ * table(keys, T) -> bytes of (T,) int64: the hash table of the keys.
+ *
+ * nearest(points, start, keys, table, cell, queries, r2, out_d2, out_j, first): for each query q (Q, 3) float64,
+ * the sorted point nearest to q among those with a squared distance d2 < r2 (r2 at most cell^2), d2 summed as
+ * (qx - px)^2 + (qy - py)^2 + (qz - pz)^2 from left to right (no fused multiply-adds): out_d2 its d2 and out_j its
+ * position among the sorted points, or inf and -1 where there is none. Ties go to the first in sorted order. The
+ * 27 cells around q's are visited from its own outwards, and a cell lies farther than the best so far (by more than
+ * 1e-12 m^2, far above rounding) is skipped. first: stop at the first point within reach instead (out_d2 is then
+ * its d2, not the least).
+ *
+ * Both release the interpreter lock while they work.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <stdint.h>
+#include <math.h>
+#include <stdlib.h>
+
+static inline uint64_t mix(uint64_t k) {  /* a 64-bit finaliser (MurmurHash3's): nearby cells spread apart */
+    k ^= k >> 33;
+    k *= 0xff51afd7ed558ccdULL;
+    k ^= k >> 33;
+    k *= 0xc4ceb9fe1a85ec53ULL;
+    k ^= k >> 33;
+    return k;
+}
+
+static inline int64_t pack(int64_t x, int64_t y, int64_t z) {
+    return ((x + (1 << 20)) << 42) | ((y + (1 << 20)) << 21) | (z + (1 << 20));
+}
+
+static inline int64_t lookup(const int64_t *table, uint64_t mask, const int64_t *keys, int64_t key) {
+    for (uint64_t h = mix((uint64_t)key) & mask;; h = (h + 1) & mask) {
+        int64_t c = table[h];
+        if (c == 0) return -1;
+        if (keys[c - 1] == key) return c - 1;
+    }
+}
+
+static PyObject *table(PyObject *self, PyObject *args) {
+    Py_buffer K;
+    long long T;
+    if (!PyArg_ParseTuple(args, "y*L", &K, &T)) return NULL;
+    PyObject *result = NULL;
+    int64_t C = K.len / 8;
+    if (K.len % 8 || T <= 0 || (T & (T - 1)) || T < 2 * C) {
+        PyErr_SetString(PyExc_ValueError, "table: keys (C,) int64 and a power of two T >= 2 C");
+        goto done;
+    }
+    if (!(result = PyBytes_FromStringAndSize(NULL, (Py_ssize_t)(T * 8)))) goto done;
+    int64_t *out = (int64_t *)PyBytes_AS_STRING(result);
+    const int64_t *keys = K.buf;
+    uint64_t mask = (uint64_t)T - 1;
+    Py_BEGIN_ALLOW_THREADS
+    for (int64_t h = 0; h < T; h++) out[h] = 0;
+    for (int64_t c = 0; c < C; c++) {
+        uint64_t h = mix((uint64_t)keys[c]) & mask;
+        while (out[h]) h = (h + 1) & mask;
+        out[h] = c + 1;
+    }
+    Py_END_ALLOW_THREADS
+done:
+    PyBuffer_Release(&K);
+    return result;
+}
+
+/* the 27 neighbouring cells, the query's own first, then those sharing a face, an edge, a corner */
+static const int8_t OFFSETS[27][3] = {
+    {0, 0, 0}, {-1, 0, 0}, {1, 0, 0}, {0, -1, 0}, {0, 1, 0}, {0, 0, -1}, {0, 0, 1},
+    {-1, -1, 0}, {-1, 1, 0}, {1, -1, 0}, {1, 1, 0}, {-1, 0, -1}, {-1, 0, 1}, {1, 0, -1}, {1, 0, 1},
+    {0, -1, -1}, {0, -1, 1}, {0, 1, -1}, {0, 1, 1},
+    {-1, -1, -1}, {-1, -1, 1}, {-1, 1, -1}, {-1, 1, 1}, {1, -1, -1}, {1, -1, 1}, {1, 1, -1}, {1, 1, 1}};
+
+static PyObject *nearest(PyObject *self, PyObject *args) {
+    Py_buffer Pb, Sb, Kb, Tb, Qb, Db, Jb;
+    double cell, r2;
+    int first;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*dy*dw*w*p", &Pb, &Sb, &Kb, &Tb, &cell, &Qb, &r2, &Db, &Jb, &first))
+        return NULL;
+    PyObject *result = NULL;
+    int64_t N = Pb.len / 24, C = Kb.len / 8, T = Tb.len / 8, Q = Qb.len / 24;
+    const int64_t *start = Sb.buf;
+    int ok = Pb.len % 24 == 0 && Kb.len % 8 == 0 && Sb.len == (C + 1) * 8 && T > 0 && (T & (T - 1)) == 0
+             && Tb.len % 8 == 0 && Qb.len % 24 == 0 && Db.len == Q * 8 && Jb.len == Q * 8 && cell > 0
+             && r2 <= cell * cell && start[0] == 0 && start[C] == N;
+    for (int64_t c = 0; ok && c < C; c++) ok = start[c] < start[c + 1];
+    if (!ok) {
+        PyErr_SetString(PyExc_ValueError, "nearest: points (N, 3) float64, start (C + 1,) ascending from 0 to N, keys "
+                                          "(C,), table (T,) int64, queries (Q, 3) float64, out_d2 (Q,) float64, "
+                                          "out_j (Q,) int64, r2 <= cell^2");
+        goto done;
+    }
+    const double *pts = Pb.buf, *q = Qb.buf;
+    const int64_t *keys = Kb.buf, *tab = Tb.buf;
+    double *od = Db.buf;
+    int64_t *oj = Jb.buf;
+    Py_BEGIN_ALLOW_THREADS
+    const double inv = 1.0 / cell;
+    const uint64_t mask = (uint64_t)T - 1;
+    for (int64_t i = 0; i < Q; i++) {
+        const double *p = q + 3 * i;
+        double best = r2;
+        int64_t bj = -1;
+        double fx = floor(p[0] * inv), fy = floor(p[1] * inv), fz = floor(p[2] * inv);
+        if (fabs(fx) < (1 << 20) && fabs(fy) < (1 << 20) && fabs(fz) < (1 << 20)) {  /* else out of every cell */
+            int64_t cx = (int64_t)fx, cy = (int64_t)fy, cz = (int64_t)fz;
+            /* squared gaps to the neighbouring cells' near faces, per axis: below, own (0), above */
+            double ox = p[0] - cx * cell, oy = p[1] - cy * cell, oz = p[2] - cz * cell;
+            double gx[3] = {ox * ox, 0, (cell - ox) * (cell - ox)}, gy[3] = {oy * oy, 0, (cell - oy) * (cell - oy)},
+                   gz[3] = {oz * oz, 0, (cell - oz) * (cell - oz)};
+            for (int o = 0; o < 27; o++) {
+                int dx = OFFSETS[o][0], dy = OFFSETS[o][1], dz = OFFSETS[o][2];
+                if (gx[dx + 1] + gy[dy + 1] + gz[dz + 1] > best + 1e-12) continue;
+                int64_t c = lookup(tab, mask, keys, pack(cx + dx, cy + dy, cz + dz));
+                if (c < 0) continue;
+                for (int64_t e = start[c]; e < start[c + 1]; e++) {
+                    const double *s = pts + 3 * e;
+                    double a = p[0] - s[0], d2 = a * a;
+                    a = p[1] - s[1];
+                    d2 += a * a;
+                    a = p[2] - s[2];
+                    d2 += a * a;
+                    if (d2 < best) {
+                        best = d2;
+                        bj = e;
+                    }
+                }
+                if (first && bj >= 0) break;
+            }
+        }
+        od[i] = bj >= 0 ? best : INFINITY;
+        oj[i] = bj;
+    }
+    Py_END_ALLOW_THREADS
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    PyBuffer_Release(&Pb);
+    PyBuffer_Release(&Sb);
+    PyBuffer_Release(&Kb);
+    PyBuffer_Release(&Tb);
+    PyBuffer_Release(&Qb);
+    PyBuffer_Release(&Db);
+    PyBuffer_Release(&Jb);
+    return result;
+}
+
+static PyMethodDef methods[] = {
+    {"table", table, METH_VARARGS, "table(keys, T) -> bytes of (T,) int64: an open-addressing hash table of the keys"},
+    {"nearest", nearest, METH_VARARGS,
+     "nearest(points, start, keys, table, cell, queries, r2, out_d2, out_j, first): the nearest point within reach"},
+    {NULL, NULL, 0, NULL}};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_grid", NULL, -1, methods};
+
+PyMODINIT_FUNC PyInit__grid(void) { return PyModule_Create(&module); }

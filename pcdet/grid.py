@@ -1,0 +1,117 @@
+"""The nearest scene point within a short radius, on a hashed voxel grid: ``GridTree``.
+
+ICP's correspondence search and the overlap ranking of pose hypotheses ask the scene's KD-tree one question, millions
+of times a frame: the nearest point within a radius of about a centimetre (``cKDTree.query`` with
+``distance_upper_bound``). For such a radius a grid of cells that wide answers it from the 27 cells around the
+query, skipping those already farther than the best point found. ``GridTree`` is a ``cKDTree`` (every other query
+is the KD-tree's) whose ``query`` takes that path for one neighbour (k=1, exact, Euclidean) within a finite bound,
+with one grid per radius built on first use. The answers are the KD-tree's: the same index and the same distance,
+to the bit (``tests/test_grid.py``; ties between points at one distance, which a voxel-grid scene does not have, may
+go to another of them).
+
+The grid runs a compiled kernel (``pcdet/_grid.c``, built by ``setup.py`` where a C compiler is at hand); without
+it every query is the KD-tree's. On the ICP and overlap queries of two real 8-object frames (1.7 million queries
+against 31,000-38,000 scene points, radii 7.5 and 12 mm) the grid took 0.61 s against the KD-tree's 1.2 s.
+"""
+from __future__ import annotations
+
+import os
+import threading
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+try:  # the compiled kernel, where the install could build it
+    from . import _grid
+except ImportError:  # pragma: no cover - exercised where no compiler was at hand
+    _grid = None
+
+_REACH = 1 << 20  # cells per axis either side of 0 that a packed key holds
+
+
+def compiled() -> bool:
+    """Whether the compiled kernel is in use (otherwise ``GridTree`` answers every query with its KD-tree)."""
+    return _grid is not None
+
+
+class _Grid:
+    """Points (N, 3) hashed into cubic cells of ``cell`` m (``pcdet/_grid.c`` describes the layout)."""
+
+    def __init__(self, points: np.ndarray, cell: float):
+        self.cell = cell
+        c = np.floor(points * (1.0 / cell))  # as the kernel computes a query's cell
+        self.usable = bool(len(points) == 0 or np.abs(c).max() < _REACH)
+        if not self.usable:  # a cloud too wide for the packed keys at this cell size: the KD-tree answers
+            return
+        c = c.astype(np.int64) + _REACH
+        key = (c[:, 0] << 42) | (c[:, 1] << 21) | c[:, 2]
+        self.order = np.argsort(key, kind="stable")  # within a cell, the points in their own order
+        key = key[self.order]
+        self.points = np.ascontiguousarray(points[self.order], dtype=np.float64)
+        self.keys, first = np.unique(key, return_index=True)
+        self.start = np.r_[first, len(key)].astype(np.int64)
+        size = 1 << max(4, int(np.ceil(np.log2(4 * max(len(self.keys), 1)))))  # at most a quarter full
+        self.table = np.frombuffer(_grid.table(self.keys, size), np.int64)
+
+    def nearest(self, queries: np.ndarray, r2: float, first: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """(Q,) squared distance and index (into the points as given) of each query's nearest point with d2 < r2
+        (inf and -1 where none); with ``first``, of the first point found within reach instead."""
+        q = np.ascontiguousarray(queries, dtype=np.float64)
+        d2, j = np.empty(len(q)), np.empty(len(q), np.int64)
+        _grid.nearest(self.points, self.start, self.keys, self.table, self.cell, q, r2, d2, j, first)
+        return d2, np.where(j >= 0, self.order[np.maximum(j, 0)], -1)
+
+
+class GridTree(cKDTree):
+    """A ``cKDTree`` (same constructor) whose nearest-neighbour queries within a finite ``distance_upper_bound``
+    run on a hashed grid of that radius (module docstring): ``query(x, distance_upper_bound=r)`` for (Q, 3) ``x``
+    returns what ``cKDTree.query`` returns, (Q,) distances (inf where none is within r) and indices (``n`` there).
+    """
+
+    def __init__(self, data, *args, **kwargs):
+        super().__init__(data, *args, **kwargs)
+        self._grids: dict[float, _Grid] = {}
+        self._lock = threading.Lock()
+
+    def __reduce__(self):  # pickled as the points it was built on; the grids are built again on use
+        return (GridTree, (np.asarray(self.data),))
+
+    def _grid(self, r: float) -> _Grid | None:
+        with self._lock:
+            g = self._grids.get(r)
+            if g is None:  # cells a hair wider than r: a point within r lies in the 27 cells around the query's
+                g = self._grids[r] = _Grid(np.asarray(self.data), r * (1 + 1e-9))
+        return g if g.usable else None
+
+    def query(self, x, k=1, eps=0, p=2, distance_upper_bound=np.inf, workers=1):
+        """``cKDTree.query``; on the grid where k is 1, eps 0, p 2, the bound finite and positive and ``x`` (Q, 3)
+        (``workers`` threads split the queries; each is answered alone, so any number gives the same)."""
+        x = np.asarray(x)
+        r = float(distance_upper_bound)
+        if (_grid is None or k != 1 or eps != 0 or p != 2 or not 0 < r < np.inf or x.ndim != 2 or x.shape[1] != 3
+                or self.m != 3):
+            return super().query(x, k=k, eps=eps, p=p, distance_upper_bound=distance_upper_bound, workers=workers)
+        g = self._grid(r)
+        if g is None:
+            return super().query(x, k=k, eps=eps, p=p, distance_upper_bound=distance_upper_bound, workers=workers)
+        r2 = r ** 2
+        n = workers if workers > 0 else (os.cpu_count() or 1)  # -1: every core, as for cKDTree
+        if n > 1 and len(x) >= 20000:
+            from concurrent.futures import ThreadPoolExecutor
+
+            parts = np.array_split(np.arange(len(x)), n)
+            with ThreadPoolExecutor(n) as pool:
+                found = list(pool.map(lambda s: g.nearest(x[s], r2), parts))
+            d2, j = np.concatenate([f[0] for f in found]), np.concatenate([f[1] for f in found])
+        else:
+            d2, j = g.nearest(x, r2)
+        return np.sqrt(d2), np.where(j >= 0, j, self.n)
+
+    def within(self, x: np.ndarray, r: float) -> np.ndarray:
+        """(Q,) bool: whether a point lies within ``r`` (d < r) of each query (Q, 3); the grid stops at the first it
+        finds."""
+        x = np.asarray(x, dtype=np.float64)
+        g = self._grid(float(r)) if _grid is not None and 0 < r < np.inf and x.ndim == 2 and self.m == 3 else None
+        if g is None:
+            return np.isfinite(super().query(x, distance_upper_bound=r)[0])
+        return g.nearest(x, float(r) ** 2, first=True)[1] >= 0

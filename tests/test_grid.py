@@ -1,0 +1,93 @@
+"""The hashed-grid nearest-point search (``pcdet.grid.GridTree``) must answer as the KD-tree it stands in for."""
+import pickle
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+
+def _surface(rng, n=20000):
+    """Points on a few noisy planes and a sphere, 0-0.5 m, about as dense as a voxel-grid scene."""
+    u = rng.uniform(0, 0.5, (n, 2))
+    planes = np.c_[u, 0.1 + 0.002 * rng.normal(size=n)]
+    walls = np.c_[0.3 + 0.002 * rng.normal(size=n // 2), u[: n // 2]]
+    v = rng.normal(size=(n // 2, 3))
+    ball = 0.25 + 0.08 * v / np.linalg.norm(v, axis=1, keepdims=True)
+    return np.vstack([planes, walls, ball])
+
+
+def test_grid_answers_as_the_kd_tree(rng):
+    """Nearest index and distance within the bound, bit for bit, for queries on, near and far from the surface
+    (radii 4, 7.5 and 12 mm, the overlap's and ICP's), with none within reach given as (inf, n); ``within`` is
+    whether a point lies within reach. The grid is compiled by the project's set-up: a missing build fails."""
+    from pcdet.grid import GridTree, compiled
+
+    assert compiled(), "pcdet._grid was not built (is a C compiler installed?)"
+    pts = _surface(rng)
+    tree, grid = cKDTree(pts), GridTree(pts)
+    q = np.vstack([pts[::7] + 0.004 * rng.normal(size=(len(pts[::7]), 3)), rng.uniform(-0.1, 0.6, (20000, 3))])
+    for r in (0.004, 0.0075, 0.012):
+        d0, j0 = tree.query(q, distance_upper_bound=r)
+        d1, j1 = grid.query(q, distance_upper_bound=r)
+        assert np.array_equal(d0, d1) and np.array_equal(j0, j1)
+        hit = np.isfinite(d0)
+        assert 0.1 < hit.mean() < 0.9 and (j1[~hit] == len(pts)).all()
+        assert np.array_equal(grid.within(q, r), hit)
+
+
+def test_grid_keeps_the_kd_tree_strict_bound_at_the_cell_faces(rng):
+    """Points on a lattice of the cell's width, each moved by a multiple of 2^-12 m (so every sum below is exact),
+    and queries the radius (0.25 m) away from some of them along an axis, on cell faces and corners: the same
+    neighbours as the KD-tree's. A point exactly the radius away is outside (d < r, as for the KD-tree)."""
+    from pcdet.grid import GridTree
+
+    r = 0.25
+    axis = np.arange(-4, 5) * r
+    lattice = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    pts = lattice + rng.integers(0, 256, lattice.shape) * 2.0 ** -12
+    q = np.vstack([pts[::3] + [r, 0, 0], pts[1::3] - [0, r, 0], lattice[::2], lattice[1::2] + [r / 2, 0, -r]])
+    d0, j0 = cKDTree(pts).query(q, distance_upper_bound=r)
+    d1, j1 = GridTree(pts).query(q, distance_upper_bound=r)
+    assert np.array_equal(d0, d1) and np.array_equal(j0, j1)
+    assert np.isfinite(d0).mean() > 0.3
+    lone = GridTree(np.array([[0.0, 0.0, 0.0]]))
+    assert lone.query(np.array([[0.25, 0, 0], [0.2499, 0, 0]]), distance_upper_bound=r)[1].tolist() == [1, 0]
+
+
+def test_grid_any_thread_count_and_every_other_query_is_the_kd_trees(rng):
+    """Two workers give what one gives; k > 1, an unbounded search, a 2-D tree and a cloud too wide for the grid's
+    keys at this radius are answered by the KD-tree itself; a pickled tree answers the same."""
+    from pcdet.grid import GridTree
+
+    pts = _surface(rng)
+    grid = GridTree(pts)
+    q = pts[:30000] + 0.003 * rng.normal(size=(30000, 3))
+    one = grid.query(q, distance_upper_bound=0.01)
+    two = grid.query(q, distance_upper_bound=0.01, workers=2)
+    assert all(np.array_equal(a, b) for a, b in zip(one, two))
+    tree = cKDTree(pts)
+    for kw in (dict(k=3, distance_upper_bound=0.01), dict(), dict(eps=0.5, distance_upper_bound=0.01)):
+        assert all(np.array_equal(a, b) for a, b in zip(tree.query(q[:500], **kw), grid.query(q[:500], **kw)))
+    flat = rng.uniform(0, 1, (500, 2))
+    assert all(np.array_equal(a, b) for a, b in zip(cKDTree(flat).query(flat + 0.01, distance_upper_bound=0.05),
+                                                    GridTree(flat).query(flat + 0.01, distance_upper_bound=0.05)))
+    wide = np.vstack([pts, [[5000.0, 0, 0]]])  # 5 km at 1 mm cells: beyond the packed keys
+    assert all(np.array_equal(a, b) for a, b in zip(cKDTree(wide).query(q, distance_upper_bound=0.001),
+                                                    GridTree(wide).query(q, distance_upper_bound=0.001)))
+    again = pickle.loads(pickle.dumps(grid))
+    assert isinstance(again, GridTree)
+    assert all(np.array_equal(a, b) for a, b in zip(one, again.query(q, distance_upper_bound=0.01)))
+
+
+def test_grid_kernel_refuses_arrays_that_do_not_make_a_grid():
+    """The kernel reads raw memory: a start list that does not run from 0 to N, a table that is not a power of two
+    or a bound beyond the cell are refused with a ValueError, never read past."""
+    from pcdet import grid
+
+    g = grid._Grid(np.array([[0.0, 0, 0], [0.5, 0, 0]]), 0.1)
+    q, d2, j = np.zeros((1, 3)), np.empty(1), np.empty(1, np.int64)
+    grid._grid.nearest(g.points, g.start, g.keys, g.table, 0.1, q, 0.01, d2, j, False)
+    assert j[0] == 0 and d2[0] == 0
+    for start, table, r2 in ((g.start + 1, g.table, 0.01), (g.start, g.table[:-1], 0.01), (g.start, g.table, 0.02)):
+        with pytest.raises(ValueError):
+            grid._grid.nearest(g.points, start, g.keys, table, 0.1, q, r2, d2, j, False)
