@@ -8,13 +8,13 @@
  *
  * table(keys, T) -> bytes of (T,) int64: the hash table of the keys.
  *
- * nearest(points, start, keys, table, cell, queries, r2, out_d2, out_j, first): for each query q (Q, 3) float64,
- * the sorted point nearest to q among those with a squared distance d2 < r2 (r2 at most cell^2), d2 summed as
+ * nearest(points, order, start, keys, table, cell, queries, r2, out_d2, out_j, first): for each query q (Q, 3)
+ * float64, the point nearest to q among those with a squared distance d2 < r2 (r2 at most cell^2), d2 summed as
  * (qx - px)^2 + (qy - py)^2 + (qz - pz)^2 from left to right (no fused multiply-adds): out_d2 its d2 and out_j its
- * position among the sorted points, or inf and -1 where there is none. Ties go to the first in sorted order. The
- * 27 cells around q's are visited from its own outwards, and a cell lies farther than the best so far (by more than
- * 1e-12 m^2, far above rounding) is skipped. first: stop at the first point within reach instead (out_d2 is then
- * its d2, not the least).
+ * index order[e] (order (N,) int64: each sorted point's index in the cloud as given), or inf and -1 where there is
+ * none. Of points at the same distance, the lowest index. The 27 cells around q's are visited from its own
+ * outwards, and a cell farther than the best so far (by more than 1e-12 m^2, far above rounding) is skipped.
+ * first: stop at the first point within reach instead (out_d2 is then its d2, not the least).
  *
  * Both release the interpreter lock while they work.
  */
@@ -80,26 +80,26 @@ static const int8_t OFFSETS[27][3] = {
     {-1, -1, -1}, {-1, -1, 1}, {-1, 1, -1}, {-1, 1, 1}, {1, -1, -1}, {1, -1, 1}, {1, 1, -1}, {1, 1, 1}};
 
 static PyObject *nearest(PyObject *self, PyObject *args) {
-    Py_buffer Pb, Sb, Kb, Tb, Qb, Db, Jb;
+    Py_buffer Pb, Ob, Sb, Kb, Tb, Qb, Db, Jb;
     double cell, r2;
     int first;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*dy*dw*w*p", &Pb, &Sb, &Kb, &Tb, &cell, &Qb, &r2, &Db, &Jb, &first))
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*dy*dw*w*p", &Pb, &Ob, &Sb, &Kb, &Tb, &cell, &Qb, &r2, &Db, &Jb, &first))
         return NULL;
     PyObject *result = NULL;
     int64_t N = Pb.len / 24, C = Kb.len / 8, T = Tb.len / 8, Q = Qb.len / 24;
     const int64_t *start = Sb.buf;
-    int ok = Pb.len % 24 == 0 && Kb.len % 8 == 0 && Sb.len == (C + 1) * 8 && T > 0 && (T & (T - 1)) == 0
-             && Tb.len % 8 == 0 && Qb.len % 24 == 0 && Db.len == Q * 8 && Jb.len == Q * 8 && cell > 0
-             && r2 <= cell * cell && start[0] == 0 && start[C] == N;
+    int ok = Pb.len % 24 == 0 && Ob.len == N * 8 && Kb.len % 8 == 0 && Sb.len == (C + 1) * 8 && T > 0
+             && (T & (T - 1)) == 0 && Tb.len % 8 == 0 && Qb.len % 24 == 0 && Db.len == Q * 8 && Jb.len == Q * 8
+             && cell > 0 && r2 <= cell * cell && start[0] == 0 && start[C] == N;
     for (int64_t c = 0; ok && c < C; c++) ok = start[c] < start[c + 1];
     if (!ok) {
-        PyErr_SetString(PyExc_ValueError, "nearest: points (N, 3) float64, start (C + 1,) ascending from 0 to N, keys "
-                                          "(C,), table (T,) int64, queries (Q, 3) float64, out_d2 (Q,) float64, "
-                                          "out_j (Q,) int64, r2 <= cell^2");
+        PyErr_SetString(PyExc_ValueError, "nearest: points (N, 3) float64, order (N,), start (C + 1,) ascending from 0 "
+                                          "to N, keys (C,), table (T,) int64, queries (Q, 3) float64, out_d2 (Q,) "
+                                          "float64, out_j (Q,) int64, r2 <= cell^2");
         goto done;
     }
     const double *pts = Pb.buf, *q = Qb.buf;
-    const int64_t *keys = Kb.buf, *tab = Tb.buf;
+    const int64_t *order = Ob.buf, *keys = Kb.buf, *tab = Tb.buf;
     double *od = Db.buf;
     int64_t *oj = Jb.buf;
     Py_BEGIN_ALLOW_THREADS
@@ -128,7 +128,7 @@ static PyObject *nearest(PyObject *self, PyObject *args) {
                     d2 += a * a;
                     a = p[2] - s[2];
                     d2 += a * a;
-                    if (d2 < best) {
+                    if (d2 < best || (d2 == best && bj >= 0 && order[e] < order[bj])) {
                         best = d2;
                         bj = e;
                     }
@@ -137,13 +137,14 @@ static PyObject *nearest(PyObject *self, PyObject *args) {
             }
         }
         od[i] = bj >= 0 ? best : INFINITY;
-        oj[i] = bj;
+        oj[i] = bj >= 0 ? order[bj] : -1;
     }
     Py_END_ALLOW_THREADS
     result = Py_None;
     Py_INCREF(result);
 done:
     PyBuffer_Release(&Pb);
+    PyBuffer_Release(&Ob);
     PyBuffer_Release(&Sb);
     PyBuffer_Release(&Kb);
     PyBuffer_Release(&Tb);
@@ -156,7 +157,8 @@ done:
 static PyMethodDef methods[] = {
     {"table", table, METH_VARARGS, "table(keys, T) -> bytes of (T,) int64: an open-addressing hash table of the keys"},
     {"nearest", nearest, METH_VARARGS,
-     "nearest(points, start, keys, table, cell, queries, r2, out_d2, out_j, first): the nearest point within reach"},
+     "nearest(points, order, start, keys, table, cell, queries, r2, out_d2, out_j, first): the nearest point within "
+     "reach"},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_grid", NULL, -1, methods};

@@ -21,6 +21,7 @@ from typing import Iterable, Iterator
 
 import numpy as np
 from scipy.spatial import cKDTree
+from .grid import GridTree
 
 from .align import transform
 from .blas import on_one_blas_thread
@@ -156,7 +157,7 @@ class _KeyframeICP:
             _, first = np.unique(voxel_keys(P, self._vox), return_index=True)
             first.sort()
             P, N = P[first], N[first]
-        self.map = (P, N, cKDTree(P), self._vox)
+        self.map = (P, N, GridTree(P), self._vox)
 
 
 class Odometry:

@@ -20,6 +20,7 @@ from .cloud import outward_normals, voxel_downsample
 from .config import PipelineConfig, RefineConfig
 from .errors import InputError
 from .features import fpfh
+from .grid import GridTree
 from .grouping import GROUPERS, make_grouper
 from .grouping.hypothesis import Hypothesis
 from .io.models import Geometry, as_geometry
@@ -134,7 +135,7 @@ def register(source, target, config: RegisterConfig | None = None, *, units="aut
     path = str(source) if isinstance(source, (str, Path)) else ""
     model = ObjectModel("source", 0, path, sp, sn, sp[skp], sn[skp], sf,
                         lrf(sp, skp) if lrf else np.full((len(skp), 3, 3), np.nan), diameter)
-    tree = cKDTree(tp)
+    tree = GridTree(tp)  # ICP and the fitness search within a few voxels: on a grid
     scene = SceneKeypoints(tp[tkp], tn[tkp], lrfs=lrf(tp, tkp) if lrf else None, cloud_tree=tree)
     prepared = PreparedModel(model, 0, sp, sn, sp.mean(axis=0), cKDTree(sf))
     rc = RefineConfig(iterations=cfg.icp_iterations, max_distance=3 * voxel, kernel=1.5 * voxel)

@@ -86,8 +86,9 @@ def test_grid_kernel_refuses_arrays_that_do_not_make_a_grid():
 
     g = grid._Grid(np.array([[0.0, 0, 0], [0.5, 0, 0]]), 0.1)
     q, d2, j = np.zeros((1, 3)), np.empty(1), np.empty(1, np.int64)
-    grid._grid.nearest(g.points, g.start, g.keys, g.table, 0.1, q, 0.01, d2, j, False)
+    grid._grid.nearest(g.points, g.order, g.start, g.keys, g.table, 0.1, q, 0.01, d2, j, False)
     assert j[0] == 0 and d2[0] == 0
-    for start, table, r2 in ((g.start + 1, g.table, 0.01), (g.start, g.table[:-1], 0.01), (g.start, g.table, 0.02)):
+    for order, start, table, r2 in ((g.order, g.start + 1, g.table, 0.01), (g.order, g.start, g.table[:-1], 0.01),
+                                    (g.order, g.start, g.table, 0.02), (g.order[:1], g.start, g.table, 0.01)):
         with pytest.raises(ValueError):
-            grid._grid.nearest(g.points, start, g.keys, table, 0.1, q, r2, d2, j, False)
+            grid._grid.nearest(g.points, order, start, g.keys, table, 0.1, q, r2, d2, j, False)
