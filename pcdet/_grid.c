@@ -2,7 +2,7 @@
  *
  * A grid: N points (N, 3) float64 sorted by cell, the C distinct cells' packed keys (C,) int64 in that order, start
  * (C + 1,) int64 (cell c holds the sorted points start[c] .. start[c + 1] - 1), and an open-addressing hash table
- * (T,) int64, T a power of two, holding c + 1 for each cell (0: empty slot). A point's cell is
+ * (T,) int64, T a power of two above C, holding c + 1 for each cell (0: empty slot; anything else is refused). A point's cell is
  * floor(x * inv), floor(y * inv), floor(z * inv) with inv = 1 / cell; its key packs the three in 21 bits each
  * (offset by 2^20; grid.py keeps them in range).
  *
@@ -37,12 +37,16 @@ static inline int64_t pack(int64_t x, int64_t y, int64_t z) {
     return ((x + (1 << 20)) << 42) | ((y + (1 << 20)) << 21) | (z + (1 << 20));
 }
 
-static inline int64_t lookup(const int64_t *table, uint64_t mask, const int64_t *keys, int64_t key) {
-    for (uint64_t h = mix((uint64_t)key) & mask;; h = (h + 1) & mask) {
+/* the cell of a key, -1 where there is none, -2 where the table holds what table() cannot have made */
+static inline int64_t lookup(const int64_t *table, uint64_t mask, const int64_t *keys, int64_t C, int64_t key) {
+    uint64_t h = mix((uint64_t)key) & mask;
+    for (uint64_t probes = 0; probes <= mask; probes++, h = (h + 1) & mask) {
         int64_t c = table[h];
         if (c == 0) return -1;
+        if (c < 0 || c > C) return -2;
         if (keys[c - 1] == key) return c - 1;
     }
+    return -2;  /* no empty slot */
 }
 
 static PyObject *table(PyObject *self, PyObject *args) {
@@ -88,7 +92,7 @@ static PyObject *nearest(PyObject *self, PyObject *args) {
     PyObject *result = NULL;
     int64_t N = Pb.len / 24, C = Kb.len / 8, T = Tb.len / 8, Q = Qb.len / 24;
     const int64_t *start = Sb.buf;
-    int ok = Pb.len % 24 == 0 && Ob.len == N * 8 && Kb.len % 8 == 0 && Sb.len == (C + 1) * 8 && T > 0
+    int ok = Pb.len % 24 == 0 && Ob.len == N * 8 && Kb.len % 8 == 0 && Sb.len == (C + 1) * 8 && T > C
              && (T & (T - 1)) == 0 && Tb.len % 8 == 0 && Qb.len % 24 == 0 && Db.len == Q * 8 && Jb.len == Q * 8
              && cell > 0 && r2 <= cell * cell && start[0] == 0 && start[C] == N;
     for (int64_t c = 0; ok && c < C; c++) ok = start[c] < start[c + 1];
@@ -102,6 +106,7 @@ static PyObject *nearest(PyObject *self, PyObject *args) {
     const int64_t *order = Ob.buf, *keys = Kb.buf, *tab = Tb.buf;
     double *od = Db.buf;
     int64_t *oj = Jb.buf;
+    int corrupt = 0;
     Py_BEGIN_ALLOW_THREADS
     const double inv = 1.0 / cell;
     const uint64_t mask = (uint64_t)T - 1;
@@ -119,7 +124,8 @@ static PyObject *nearest(PyObject *self, PyObject *args) {
             for (int o = 0; o < 27; o++) {
                 int dx = OFFSETS[o][0], dy = OFFSETS[o][1], dz = OFFSETS[o][2];
                 if (gx[dx + 1] + gy[dy + 1] + gz[dz + 1] > best + 1e-12) continue;
-                int64_t c = lookup(tab, mask, keys, pack(cx + dx, cy + dy, cz + dz));
+                int64_t c = lookup(tab, mask, keys, C, pack(cx + dx, cy + dy, cz + dz));
+                if (c == -2) corrupt = 1;
                 if (c < 0) continue;
                 for (int64_t e = start[c]; e < start[c + 1]; e++) {
                     const double *s = pts + 3 * e;
@@ -140,6 +146,10 @@ static PyObject *nearest(PyObject *self, PyObject *args) {
         oj[i] = bj >= 0 ? order[bj] : -1;
     }
     Py_END_ALLOW_THREADS
+    if (corrupt) {
+        PyErr_SetString(PyExc_ValueError, "nearest: the hash table was not made by table() from these keys");
+        goto done;
+    }
     result = Py_None;
     Py_INCREF(result);
 done:

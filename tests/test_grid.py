@@ -80,8 +80,9 @@ def test_grid_any_thread_count_and_every_other_query_is_the_kd_trees(rng):
 
 
 def test_grid_kernel_refuses_arrays_that_do_not_make_a_grid():
-    """The kernel reads raw memory: a start list that does not run from 0 to N, a table that is not a power of two
-    or a bound beyond the cell are refused with a ValueError, never read past."""
+    """The kernel reads raw memory: a start list that does not run from 0 to N, a table that is not a power of two,
+    has no empty slot or names cells that do not exist, or a bound beyond the cell are refused with a ValueError,
+    never read past (nor searched for ever)."""
     from pcdet import grid
 
     g = grid._Grid(np.array([[0.0, 0, 0], [0.5, 0, 0]]), 0.1)
@@ -89,6 +90,8 @@ def test_grid_kernel_refuses_arrays_that_do_not_make_a_grid():
     grid._grid.nearest(g.points, g.order, g.start, g.keys, g.table, 0.1, q, 0.01, d2, j, False)
     assert j[0] == 0 and d2[0] == 0
     for order, start, table, r2 in ((g.order, g.start + 1, g.table, 0.01), (g.order, g.start, g.table[:-1], 0.01),
-                                    (g.order, g.start, g.table, 0.02), (g.order[:1], g.start, g.table, 0.01)):
+                                    (g.order, g.start, g.table, 0.02), (g.order[:1], g.start, g.table, 0.01),
+                                    (g.order, g.start, np.ones_like(g.table), 0.01),
+                                    (g.order, g.start, np.full_like(g.table, 99), 0.01)):
         with pytest.raises(ValueError):
             grid._grid.nearest(g.points, order, start, g.keys, table, 0.1, q, r2, d2, j, False)
