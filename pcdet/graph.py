@@ -1,11 +1,12 @@
 """Graph kernels of the correspondence groupers: the tests of candidate pairs that a compatibility graph is built
-from (``length_matches``, the length test alone; ``compatible_pairs``, the length and the angle tests), and the common
-neighbours of each edge of a sparse undirected graph in CSR form (``common_neighbours``; ``start``, ``deg``,
-``nbr``: row i lists its neighbours ``nbr[start[i]:start[i] + deg[i]]``, ascending, and every edge appears in both
-rows).
+from (``compatible_pairs``, the length and the angle tests, compiled; ``length_matches``, the length test in numpy),
+and the common neighbours of each edge of a sparse undirected graph in CSR form (``common_neighbours``; ``start``,
+``deg``, ``nbr``: row i lists its neighbours ``nbr[start[i]:start[i] + deg[i]]``, ascending, and every edge appears
+in both rows).
 
 They run a small compiled kernel (``pcdet/_graph.c``, built by ``setup.py`` when pcdet is installed where a C
-compiler is at hand) and otherwise numpy and scipy, with the same results. On the 16 compatibility graphs of two
+compiler is at hand) and otherwise numpy and scipy, with the same results (``grouping.common`` takes the numpy
+tests where the kernel was not built). On the 16 compatibility graphs of two
 real 8-object frames (44,000-832,000 entries) the common neighbours took 0.14 s against scipy's 1.28 s. The angle
 test cannot round its arc cosines as numpy's float32 code does, so the kernel decides it only where that rounding
 cannot matter and hands numpy the rest (on the 112 graphs of every 3rd real cat frame, 8 models given, it kept
@@ -54,23 +55,21 @@ def common_neighbours(start: np.ndarray, deg: np.ndarray, nbr: np.ndarray, *, us
 
 
 def length_matches(a: np.ndarray, b: np.ndarray, lo2: np.ndarray, hi2: np.ndarray, cand: np.ndarray,
-                   points: np.ndarray, *, use_compiled: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The candidate pairs ``(cand[a[p], r1], cand[b[p], r2])`` (both >= 0) whose points lie apart by a squared
     distance l2 with ``lo2[p] < l2 < hi2[p]``: three (Q,) int64 arrays, the pair p and the correspondences
     ``a[p] * k + r1`` and ``b[p] * k + r2``, by p, then r1, then r2.
 
     a, b : (P,) int64 rows of ``cand`` (scene keypoints); lo2, hi2 : (P,) float32 (m^2); cand : (S, k) int64
     candidate model keypoints, -1 where there is none; points : (K, 3) float32 model keypoints (m). l2 is summed in
-    float32 as ``(bx - ax)^2``, then ``+= (by - ay)^2`` and ``+= (bz - az)^2``, the same in both ways.
+    float32 as ``(bx - ax)^2``, then ``+= (by - ay)^2`` and ``+= (bz - az)^2``, as the compiled
+    ``compatible_pairs`` sums it. In numpy: the graph's path where the kernel was not built.
     """
     a, b = np.ascontiguousarray(a, dtype=np.int64), np.ascontiguousarray(b, dtype=np.int64)
     lo2, hi2 = np.ascontiguousarray(lo2, dtype=np.float32), np.ascontiguousarray(hi2, dtype=np.float32)
     cand = np.ascontiguousarray(cand, dtype=np.int64)
     xyz = [np.ascontiguousarray(points[:, i], dtype=np.float32) for i in range(3)]
     k = cand.shape[1]
-    if use_compiled and _graph is not None:
-        pair, ia, ib = np.frombuffer(_graph.length_matches(a, b, lo2, hi2, cand, *xyz, k), np.int64).reshape(3, -1)
-        return pair, ia, ib
     # one coordinate array per axis with a NaN at the end, which a missing candidate (-1) reads: its length is NaN
     # and fails the test, as does the same model keypoint at both ends (length 0, and lo2 >= 0)
     mx, my, mz = (np.append(c, np.float32(np.nan)) for c in xyz)

@@ -510,32 +510,35 @@ def test_common_neighbours_refuses_what_is_not_a_symmetric_csr_graph():
             common_neighbours(start, deg, nbr)
 
 
-def test_length_matches_compiled_and_numpy_keep_the_same_pairs(rng):
-    """The length test of candidate pairs (``graph.length_matches``), compiled and in numpy: the same pairs, in the
-    same order, on random tables with missing candidates (-1), repeated model keypoints (length 0) and bounds drawn
-    from the pairs' own squared lengths (so that some fall exactly on a bound); out-of-range rows or candidates
-    are refused."""
-    from pcdet.graph import compiled, length_matches
+def test_the_kernels_length_test_keeps_the_pairs_numpy_keeps(rng):
+    """The length test of candidate pairs, in the compiled ``graph.compatible_pairs`` and in numpy
+    (``graph.length_matches``): with every angle NaN the kernel decides no angle and leaves every pair that passes
+    its length test to numpy, so those are the pairs numpy keeps, in the same order; on random tables with missing
+    candidates (-1), repeated model keypoints (length 0) and bounds drawn from the pairs' own squared lengths (so
+    that some fall exactly on a bound). Out-of-range rows or candidates are refused."""
+    from pcdet.graph import compatible_pairs, compiled, length_matches
 
     assert compiled(), "pcdet._graph was not built (is a C compiler installed?)"
     S, k, K, P = 300, 8, 120, 2000
     pts = rng.normal(scale=0.05, size=(K, 3)).astype(np.float32)
+    nrm = np.tile(np.float32([0, 0, 1]), (K, 1))
     cand = rng.integers(-1, K, size=(S, k))
     a, b = rng.integers(0, S, P), rng.integers(0, S, P)
     d = pts[np.maximum(cand[b, 0], 0)] - pts[np.maximum(cand[a, 0], 0)]
     l2 = (d * d).sum(axis=1).astype(np.float32)
     lo2 = np.where(rng.random(P) < 0.3, l2, np.float32(0.5) * l2).astype(np.float32)
     hi2 = np.where(rng.random(P) < 0.3, l2, np.float32(2.0) * l2 + np.float32(1e-4)).astype(np.float32)
-    fast = length_matches(a, b, lo2, hi2, cand, pts)
-    slow = length_matches(a, b, lo2, hi2, cand, pts, use_compiled=False)
-    assert len(fast[0]) > 1000 and all(np.array_equal(x, y) for x, y in zip(fast, slow))
-    p, ia, ib = fast
-    ma, mb = cand.reshape(-1)[ia], cand.reshape(-1)[ib]
-    assert (ma >= 0).all() and (mb >= 0).all() and (ia // k == a[p]).all() and (ib // k == b[p]).all()
+    kw = dict(normals=nrm, angles=np.full((P, 3), np.nan, np.float32), tol=0.3)
+    ia, ib, *left = compatible_pairs(a, b, lo2, hi2, cand, pts, **kw)
+    want = length_matches(a, b, lo2, hi2, cand, pts)
+    assert len(ia) == 0 and len(want[0]) > 1000 and all(np.array_equal(x, y) for x, y in zip(left, want))
+    p, ua, ub = left
+    ma, mb = cand.reshape(-1)[ua], cand.reshape(-1)[ub]
+    assert (ma >= 0).all() and (mb >= 0).all() and (ua // k == a[p]).all() and (ub // k == b[p]).all()
     with pytest.raises(ValueError):
-        length_matches(a, np.r_[b[:-1], S], lo2, hi2, cand, pts)
+        compatible_pairs(a, np.r_[b[:-1], S], lo2, hi2, cand, pts, **kw)
     with pytest.raises(ValueError):
-        length_matches(a, b, lo2, hi2, np.where(cand == 0, K, cand), pts)
+        compatible_pairs(a, b, lo2, hi2, np.where(cand == 0, K, cand), pts, **kw)
 
 
 def test_compatible_pairs_decides_the_angle_test_as_numpy_does(rng, monkeypatch):
