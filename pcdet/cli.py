@@ -588,8 +588,8 @@ def version():
     missing = [name for name, ok in kernels.items() if not ok]
     line = f"compiled kernels: {', '.join(built) or 'none'}"
     if missing:
-        line += f" (not built: {', '.join(missing)}; numpy and scipy compute the same results more slowly; reinstall with a C " \
-                "compiler to build them)"
+        line += f" (not built: {', '.join(missing)}; numpy and scipy compute the same results more slowly; " \
+                "reinstall with a C compiler to build them)"
     out_console.print(line, highlight=False)
 
 

@@ -6,11 +6,11 @@ in both rows).
 
 They run a small compiled kernel (``pcdet/_graph.c``, built by ``setup.py`` when pcdet is installed where a C
 compiler is at hand) and otherwise numpy and scipy, with the same results (``grouping.common`` takes the numpy
-tests where the kernel was not built). On the 16 compatibility graphs of two
-real 8-object frames (44,000-832,000 entries) the common neighbours took 0.14 s against scipy's 1.28 s. The angle
-test cannot round its arc cosines as numpy's float32 code does, so the kernel decides it only where that rounding
-cannot matter and hands numpy the rest (on the 112 graphs of every 3rd real cat frame, 8 models given, it kept
-13.8 million pairs and left 196 to numpy). Those 112 graphs took 3.8 s to build on one thread, against 6.7 s with the angle test in numpy, and
+tests where the kernel was not built). On the 16 compatibility graphs of two real 8-object frames
+(44,000-832,000 entries) the common neighbours took 0.14 s against scipy's 1.28 s. The angle test cannot round its
+arc cosines as numpy's float32 code does, so the kernel decides it only where that rounding cannot matter and hands
+numpy the rest (on the 112 graphs of every 3rd real cat frame, 8 models given, it kept 13.8 million pairs and left
+196 to numpy). Those 112 graphs took 3.8 s to build on one thread, against 6.7 s with the angle test in numpy, and
 are the same graphs.
 """
 from __future__ import annotations
@@ -89,7 +89,6 @@ def length_matches(a: np.ndarray, b: np.ndarray, lo2: np.ndarray, hi2: np.ndarra
     q, r2 = np.divmod(np.sort(np.concatenate(codes)), k)
     p, r1 = np.divmod(q, k)
     return p, a[p] * k + r1, b[p] * k + r2
-
 
 
 def compatible_pairs(a: np.ndarray, b: np.ndarray, lo2: np.ndarray, hi2: np.ndarray, cand: np.ndarray,

@@ -20,14 +20,13 @@ from dataclasses import dataclass
 from typing import Iterable, Iterator
 
 import numpy as np
-from scipy.spatial import cKDTree
-from .grid import GridTree
 
 from .align import transform
 from .blas import on_one_blas_thread
 from .cloud import estimate_normals, voxel_downsample, voxel_keys
 from .errors import ConfigError
 from .frame import Frame
+from .grid import GridTree
 from .metrics import rotation_error_deg
 from .params import check_positive
 from .refine import RefineConfig, icp
