@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 import threading
+from collections import OrderedDict
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -72,9 +73,11 @@ class GridTree(cKDTree):
     returns what ``cKDTree.query`` returns, (Q,) distances (inf where none is within r) and indices (``n`` there).
     """
 
+    KEEP = 8  # grids kept, the most recently used (detection asks at 4 radii a frame, odometry at a radius a frame)
+
     def __init__(self, data, *args, **kwargs):
         super().__init__(data, *args, **kwargs)
-        self._grids: dict[float, _Grid] = {}
+        self._grids: OrderedDict[float, _Grid] = OrderedDict()
         self._lock = threading.Lock()
 
     def __reduce__(self):  # pickled as the points it was built on; the grids are built again on use
@@ -85,6 +88,9 @@ class GridTree(cKDTree):
             g = self._grids.get(r)
             if g is None:  # cells a hair wider than r: a point within r lies in the 27 cells around the query's
                 g = self._grids[r] = _Grid(np.asarray(self.data), r * (1 + 1e-9))
+                while len(self._grids) > self.KEEP:
+                    self._grids.popitem(last=False)
+            self._grids.move_to_end(r)
         return g if g.usable else None
 
     def query(self, x, k=1, eps=0, p=2, distance_upper_bound=np.inf, workers=1):

@@ -56,7 +56,8 @@ def test_grid_keeps_the_kd_tree_strict_bound_at_the_cell_faces(rng):
 
 def test_grid_any_thread_count_and_every_other_query_is_the_kd_trees(rng):
     """Two workers give what one gives; k > 1, an unbounded search, a 2-D tree and a cloud too wide for the grid's
-    keys at this radius are answered by the KD-tree itself; a pickled tree answers the same."""
+    keys at this radius are answered by the KD-tree itself; asked at ten radii, the tree keeps the last eight grids
+    (odometry asks at a radius of each frame's own); a pickled tree answers the same."""
     from pcdet.grid import GridTree
 
     pts = _surface(rng)
@@ -74,6 +75,9 @@ def test_grid_any_thread_count_and_every_other_query_is_the_kd_trees(rng):
     wide = np.vstack([pts, [[5000.0, 0, 0]]])  # 5 km at 1 mm cells: beyond the packed keys
     assert all(np.array_equal(a, b) for a, b in zip(cKDTree(wide).query(q, distance_upper_bound=0.001),
                                                     GridTree(wide).query(q, distance_upper_bound=0.001)))
+    for r in np.linspace(0.005, 0.02, 10):  # a radius per call, as odometry asks: only the last few grids are kept
+        grid.query(q[:100], distance_upper_bound=r)
+    assert len(grid._grids) == GridTree.KEEP
     again = pickle.loads(pickle.dumps(grid))
     assert isinstance(again, GridTree)
     assert all(np.array_equal(a, b) for a, b in zip(one, again.query(q, distance_upper_bound=0.01)))
