@@ -5,7 +5,8 @@
 is at hand the install goes on without them, and pcdet computes the same results with numpy and scipy."""
 from setuptools import Extension, setup
 
-# no fused multiply-adds: the length test must round as numpy's float32 arithmetic does (pcdet/_graph.c), and the
-# residuals are summed in one stated order (pcdet/_residuals.c)
+# no fused multiply-adds: the length test must round as numpy's float32 arithmetic does (pcdet/_graph.c), the
+# residuals are summed in one stated order (pcdet/_residuals.c), and the grid's distances as the KD-tree's
+# (pcdet/_grid.c)
 setup(ext_modules=[Extension(f"pcdet.{name}", [f"pcdet/{name}.c"], extra_compile_args=["-ffp-contract=off"],
                              optional=True) for name in ("_graph", "_residuals", "_grid")])

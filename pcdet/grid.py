@@ -5,11 +5,12 @@ of times a frame: the nearest point within a radius of about a centimetre (``cKD
 ``distance_upper_bound``). For such a radius a grid of cells that wide answers it from the 27 cells around the
 query, skipping those already farther than the best point found. ``GridTree`` is a ``cKDTree`` (every other query
 is the KD-tree's) whose ``query`` takes that path for one neighbour (k=1, exact, Euclidean) within a finite bound,
-with one grid per radius built on first use. The answers are the KD-tree's: the same index and the same distance,
-to the bit (``tests/test_grid.py``), except where several points lie at the nearest distance to the bit: the grid
-takes the lowest index, the KD-tree one that its traversal meets first. Real frames have such ties (15 of 970,000
-odometry queries on the first 30 7-Scenes frames: depth in whole millimetres on a pixel grid), so poses refined
-against a ``GridTree`` can differ from the KD-tree's in the last digits (1e-7 m over the 300 frames).
+with one grid per radius built on first use (the eight most recently used are kept). The answers are the
+KD-tree's: the same index and the same distance, to the bit (``tests/test_grid.py``), except where several points
+lie at the nearest distance to the bit: the grid takes the lowest index, the KD-tree one that its traversal meets
+first. Real frames have such ties (16 of 970,000 odometry queries on the first 30 7-Scenes frames: depth in whole
+millimetres on a pixel grid), so poses refined against a ``GridTree`` can differ from the KD-tree's in the last
+digits (1e-7 m over the 300 frames).
 
 The grid runs a compiled kernel (``pcdet/_grid.c``, built by ``setup.py`` where a C compiler is at hand); without
 it every query is the KD-tree's. On the queries of two real 8-object frames (31,000-38,000 scene points), the
@@ -93,15 +94,19 @@ class GridTree(cKDTree):
             self._grids.move_to_end(r)
         return g if g.usable else None
 
+    def _grid_for(self, x: np.ndarray, r: float) -> _Grid | None:
+        """The grid that answers queries ``x`` within ``r``, or None where the KD-tree must: no kernel, a bound
+        that is not finite and positive, queries or points that are not 3-D, or a cloud too wide for the keys."""
+        if _grid is None or not 0 < r < np.inf or x.ndim != 2 or x.shape[1] != 3 or self.m != 3:
+            return None
+        return self._grid(r)
+
     def query(self, x, k=1, eps=0, p=2, distance_upper_bound=np.inf, workers=1):
         """``cKDTree.query``; on the grid where k is 1, eps 0, p 2, the bound finite and positive and ``x`` (Q, 3)
         (``workers`` threads split the queries; each is answered alone, so any number gives the same)."""
         x = np.asarray(x)
         r = float(distance_upper_bound)
-        if (_grid is None or k != 1 or eps != 0 or p != 2 or not 0 < r < np.inf or x.ndim != 2 or x.shape[1] != 3
-                or self.m != 3):
-            return super().query(x, k=k, eps=eps, p=p, distance_upper_bound=distance_upper_bound, workers=workers)
-        g = self._grid(r)
+        g = self._grid_for(x, r) if k == 1 and eps == 0 and p == 2 else None
         if g is None:
             return super().query(x, k=k, eps=eps, p=p, distance_upper_bound=distance_upper_bound, workers=workers)
         r2 = r ** 2
@@ -120,8 +125,8 @@ class GridTree(cKDTree):
     def within(self, x: np.ndarray, r: float) -> np.ndarray:
         """(Q,) bool: whether a point lies within ``r`` (d < r) of each query (Q, 3); the grid stops at the first it
         finds."""
-        x = np.asarray(x, dtype=np.float64)
-        g = self._grid(float(r)) if _grid is not None and 0 < r < np.inf and x.ndim == 2 and self.m == 3 else None
+        x, r = np.asarray(x, dtype=np.float64), float(r)
+        g = self._grid_for(x, r)
         if g is None:
             return np.isfinite(super().query(x, distance_upper_bound=r)[0])
-        return g.nearest(x, float(r) ** 2, first=True)[1] >= 0
+        return g.nearest(x, r ** 2, first=True)[1] >= 0
