@@ -24,30 +24,7 @@
 #include <math.h>
 #include <stdlib.h>
 
-static inline uint64_t mix(uint64_t k) {  /* a 64-bit finaliser (MurmurHash3's): nearby cells spread apart */
-    k ^= k >> 33;
-    k *= 0xff51afd7ed558ccdULL;
-    k ^= k >> 33;
-    k *= 0xc4ceb9fe1a85ec53ULL;
-    k ^= k >> 33;
-    return k;
-}
-
-static inline int64_t pack(int64_t x, int64_t y, int64_t z) {
-    return ((x + (1 << 20)) << 42) | ((y + (1 << 20)) << 21) | (z + (1 << 20));
-}
-
-/* the cell of a key, -1 where there is none, -2 where the table holds what table() cannot have made */
-static inline int64_t lookup(const int64_t *table, uint64_t mask, const int64_t *keys, int64_t C, int64_t key) {
-    uint64_t h = mix((uint64_t)key) & mask;
-    for (uint64_t probes = 0; probes <= mask; probes++, h = (h + 1) & mask) {
-        int64_t c = table[h];
-        if (c == 0) return -1;
-        if (c < 0 || c > C) return -2;
-        if (keys[c - 1] == key) return c - 1;
-    }
-    return -2;  /* no empty slot */
-}
+#include "_cells.h"
 
 static PyObject *table(PyObject *self, PyObject *args) {
     Py_buffer K;
@@ -75,13 +52,6 @@ done:
     PyBuffer_Release(&K);
     return result;
 }
-
-/* the 27 neighbouring cells, the query's own first, then those sharing a face, an edge, a corner */
-static const int8_t OFFSETS[27][3] = {
-    {0, 0, 0}, {-1, 0, 0}, {1, 0, 0}, {0, -1, 0}, {0, 1, 0}, {0, 0, -1}, {0, 0, 1},
-    {-1, -1, 0}, {-1, 1, 0}, {1, -1, 0}, {1, 1, 0}, {-1, 0, -1}, {-1, 0, 1}, {1, 0, -1}, {1, 0, 1},
-    {0, -1, -1}, {0, -1, 1}, {0, 1, -1}, {0, 1, 1},
-    {-1, -1, -1}, {-1, -1, 1}, {-1, 1, -1}, {-1, 1, 1}, {1, -1, -1}, {1, -1, 1}, {1, 1, -1}, {1, 1, 1}};
 
 static PyObject *nearest(PyObject *self, PyObject *args) {
     Py_buffer Pb, Ob, Sb, Kb, Tb, Qb, Db, Jb;

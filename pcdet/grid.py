@@ -39,8 +39,10 @@ def compiled() -> bool:
     return _grid is not None
 
 
-class _Grid:
-    """Points (N, 3) hashed into cubic cells of ``cell`` m (``pcdet/_grid.c`` describes the layout)."""
+class CellGrid:
+    """Points (N, 3) hashed into cubic cells of ``cell`` m (``pcdet/_grid.c`` describes the layout): ``points``
+    (N, 3) float64 sorted by cell, ``order`` (N,) each one's index in the cloud as given, ``start``, ``keys`` and
+    ``table``; ``usable`` False where the cloud is too wide for the packed keys (then nothing else is set)."""
 
     def __init__(self, points: np.ndarray, cell: float):
         self.cell = cell
@@ -78,23 +80,23 @@ class GridTree(cKDTree):
 
     def __init__(self, data, *args, **kwargs):
         super().__init__(data, *args, **kwargs)
-        self._grids: OrderedDict[float, _Grid] = OrderedDict()
+        self._grids: OrderedDict[float, CellGrid] = OrderedDict()
         self._lock = threading.Lock()
 
     def __reduce__(self):  # pickled as the points it was built on; the grids are built again on use
         return (GridTree, (np.asarray(self.data),))
 
-    def _grid(self, r: float) -> _Grid | None:
+    def _grid(self, r: float) -> CellGrid | None:
         with self._lock:
             g = self._grids.get(r)
             if g is None:  # cells a hair wider than r: a point within r lies in the 27 cells around the query's
-                g = self._grids[r] = _Grid(np.asarray(self.data), r * (1 + 1e-9))
+                g = self._grids[r] = CellGrid(np.asarray(self.data), r * (1 + 1e-9))
                 while len(self._grids) > self.KEEP:
                     self._grids.popitem(last=False)
             self._grids.move_to_end(r)
         return g if g.usable else None
 
-    def _grid_for(self, x: np.ndarray, r: float) -> _Grid | None:
+    def _grid_for(self, x: np.ndarray, r: float) -> CellGrid | None:
         """The grid that answers queries ``x`` within ``r``, or None where the KD-tree must: no kernel, a bound
         that is not finite and positive, queries or points that are not 3-D, or a cloud too wide for the keys."""
         if _grid is None or not 0 < r < np.inf or x.ndim != 2 or x.shape[1] != 3 or self.m != 3:

@@ -89,7 +89,7 @@ def test_grid_kernel_refuses_arrays_that_do_not_make_a_grid():
     never read past (nor searched for ever)."""
     from pcdet import grid
 
-    g = grid._Grid(np.array([[0.0, 0, 0], [0.5, 0, 0]]), 0.1)
+    g = grid.CellGrid(np.array([[0.0, 0, 0], [0.5, 0, 0]]), 0.1)
     q, d2, j = np.zeros((1, 3)), np.empty(1), np.empty(1, np.int64)
     grid._grid.nearest(g.points, g.order, g.start, g.keys, g.table, 0.1, q, 0.01, d2, j, False)
     assert j[0] == 0 and d2[0] == 0

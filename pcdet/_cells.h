@@ -1,0 +1,39 @@
+/* The hashed voxel grid shared by pcdet's kernels (_grid.c describes the layout): the key of a cell, the hash of a
+ * key, the lookup of a cell by its key, and the 27 cells around a query's in the order they are visited. */
+#ifndef PCDET_CELLS_H
+#define PCDET_CELLS_H
+#include <stdint.h>
+
+static inline uint64_t mix(uint64_t k) {  /* a 64-bit finaliser (MurmurHash3's): nearby cells spread apart */
+    k ^= k >> 33;
+    k *= 0xff51afd7ed558ccdULL;
+    k ^= k >> 33;
+    k *= 0xc4ceb9fe1a85ec53ULL;
+    k ^= k >> 33;
+    return k;
+}
+
+static inline int64_t pack(int64_t x, int64_t y, int64_t z) {
+    return ((x + (1 << 20)) << 42) | ((y + (1 << 20)) << 21) | (z + (1 << 20));
+}
+
+/* the cell of a key, -1 where there is none, -2 where the table holds what table() cannot have made */
+static inline int64_t lookup(const int64_t *table, uint64_t mask, const int64_t *keys, int64_t C, int64_t key) {
+    uint64_t h = mix((uint64_t)key) & mask;
+    for (uint64_t probes = 0; probes <= mask; probes++, h = (h + 1) & mask) {
+        int64_t c = table[h];
+        if (c == 0) return -1;
+        if (c < 0 || c > C) return -2;
+        if (keys[c - 1] == key) return c - 1;
+    }
+    return -2;  /* no empty slot */
+}
+
+/* the 27 neighbouring cells, the query's own first, then those sharing a face, an edge, a corner */
+static const int8_t OFFSETS[27][3] = {
+    {0, 0, 0}, {-1, 0, 0}, {1, 0, 0}, {0, -1, 0}, {0, 1, 0}, {0, 0, -1}, {0, 0, 1},
+    {-1, -1, 0}, {-1, 1, 0}, {1, -1, 0}, {1, 1, 0}, {-1, 0, -1}, {-1, 0, 1}, {1, 0, -1}, {1, 0, 1},
+    {0, -1, -1}, {0, -1, 1}, {0, 1, -1}, {0, 1, 1},
+    {-1, -1, -1}, {-1, -1, 1}, {-1, 1, -1}, {-1, 1, 1}, {1, -1, -1}, {1, -1, 1}, {1, 1, -1}, {1, 1, 1}};
+
+#endif
