@@ -257,7 +257,7 @@ class Detector:
                         at = np.cumsum(keep) - 1  # new position of each kept keypoint
                         levels = {s: at[i[keep[i]]] for s, i in levels.items()}
         with tm("features"):
-            feats = fpfh(cloud.points, cloud.normals, kp, cfg.features)
+            feats = fpfh(cloud.points, cloud.normals, kp, cfg.features, workers=self.workers)
         return Scene(cloud.points, cloud.normals, cloud.labels, cloud.plane, kp, feats,
                      lrf_radius=cfg.features.lrf_support, colours=colours, workers=self.workers, levels=levels)
 
