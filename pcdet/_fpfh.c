@@ -217,7 +217,8 @@ static inline int bin(double b) {
  * of a pair, so it is first approximated (a polynomial within 2.1e-4 rad of it, 3.7e-4 in t); only where t lies
  * within 1e-3 of a bin's edge (or is not a number) is atan2 itself asked */
 static inline int alpha_bin(double y, double x) {
-    double ax = fabs(x), ay = fabs(y), steep = ay > ax;
+    double ax = fabs(x), ay = fabs(y);
+    int steep = ay > ax;
     double a = (steep ? ax : ay) / (steep ? ay : ax), s = a * a;
     double r = ((-0.0464964749 * s + 0.15931422) * s - 0.327622764) * s * a + a;
     r = steep ? M_PI_2 - r : r;
@@ -226,7 +227,6 @@ static inline int alpha_bin(double y, double x) {
     if (!(frac >= 1e-3 && frac <= 1 - 1e-3)) t = 11 * (atan2(y, x) + M_PI) / (2.0 * M_PI);
     return bin(t);
 }
-
 
 static int parse_grid(Py_buffer *Pb, Py_buffer *Ob, Py_buffer *Sb, Py_buffer *Kb, Py_buffer *Tb, double cell, Grid *g) {
     int64_t N = Pb->len / 24, C = Kb->len / 8, T = Tb->len / 8;
@@ -257,7 +257,7 @@ static int parse_grid(Py_buffer *Pb, Py_buffer *Ob, Py_buffer *Sb, Py_buffer *Kb
     PyBuffer_Release(&Kb);                                                                                           \
     PyBuffer_Release(&Tb)
 
-static const char *GRID_ERR = "grid: points (N, 3) float64, order (N,) a permutation, start (C + 1,) ascending from "
+static const char *GRID_ERR = "grid: points (N, 3) float64, order (N,) in 0..N-1, start (C + 1,) ascending from "
                               "0 to N, keys (C,), table (T,) int64";
 
 /* which (M,) int64 indices into a cloud of n points */
