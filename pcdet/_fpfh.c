@@ -269,11 +269,14 @@ static int valid_indices(const Py_buffer *Wb, int64_t n) {
     return 1;
 }
 
-/* the failure after a loop: no memory, or a corrupt table */
-static PyObject *failed(int nomem, int corrupt) {
+/* what a call returns after its loop: None, or the failure (no memory, a corrupt table) */
+static PyObject *finish(int nomem, int corrupt) {
     if (nomem) return PyErr_NoMemory();
-    if (corrupt) PyErr_SetString(PyExc_ValueError, "the hash table was not made by table() from these keys");
-    return NULL;
+    if (corrupt) {
+        PyErr_SetString(PyExc_ValueError, "the hash table was not made by table() from these keys");
+        return NULL;
+    }
+    Py_RETURN_NONE;
 }
 
 static PyObject *reach(PyObject *self, PyObject *args) {
@@ -305,12 +308,7 @@ static PyObject *reach(PyObject *self, PyObject *args) {
     free(b.near);
     free(b.d2);
     Py_END_ALLOW_THREADS
-    if (nomem || corrupt) {
-        result = failed(nomem, corrupt);
-        goto done;
-    }
-    result = Py_None;
-    Py_INCREF(result);
+    result = finish(nomem, corrupt);
 done:
     RELEASE_GRID;
     PyBuffer_Release(&Xb);
@@ -366,12 +364,7 @@ static PyObject *spfh(PyObject *self, PyObject *args) {
     free(b.near);
     free(b.d2);
     Py_END_ALLOW_THREADS
-    if (nomem || corrupt) {
-        result = failed(nomem, corrupt);
-        goto done;
-    }
-    result = Py_None;
-    Py_INCREF(result);
+    result = finish(nomem, corrupt);
 done:
     RELEASE_GRID;
     PyBuffer_Release(&Nb);
@@ -442,12 +435,7 @@ static PyObject *fpfh(PyObject *self, PyObject *args) {
         PyErr_SetString(PyExc_ValueError, "fpfh: a neighbour's histogram is not in spfh (row -1 or out of range)");
         goto done;
     }
-    if (nomem || corrupt) {
-        result = failed(nomem, corrupt);
-        goto done;
-    }
-    result = Py_None;
-    Py_INCREF(result);
+    result = finish(nomem, corrupt);
 done:
     RELEASE_GRID;
     PyBuffer_Release(&Xb);
