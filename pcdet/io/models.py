@@ -109,8 +109,8 @@ def resolve_scale(verts: np.ndarray, units, path: Path, notes: list[str]) -> flo
     if scale is None:
         raise InputError(f"unknown units {units!r}; use one of {sorted(UNITS)}, 'auto' or a number", path)
     if extent * scale > MM_DETECT_EXTENT:
-        warnings.warn(f"{path}: model is {extent * scale:.1f} m wide when read as {units}; is it in millimetres?",
-                      UnitsWarning, stacklevel=3)
+        warnings.warn(f"{path}: model is {extent * scale:.1f} m wide when read as {units}, larger than any object "
+                      "pcdet detects; check the units", UnitsWarning, stacklevel=3)
     return scale
 
 
