@@ -16,7 +16,11 @@
  * outwards, and a cell farther than the best so far (by more than 1e-12 m^2, far above rounding) is skipped.
  * first: stop at the first point within reach instead (out_d2 is then its d2, not the least).
  *
- * Both release the interpreter lock while they work.
+ * clusters(points, order, start, keys, table, cell, r2, out): the connected components of the points linked where
+ * d2 <= r2 (r2 at most cell^2; d2 summed as above, as scipy's cKDTree.query_pairs decides it): out (N,) int64 gives
+ * each point (by its index in the cloud as given) the lowest index in its component.
+ *
+ * All release the interpreter lock while they work.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -134,11 +138,93 @@ done:
     return result;
 }
 
+/* the root of x's set, halving the path on the way */
+static inline int64_t root(int64_t *parent, int64_t x) {
+    while (parent[x] != x) {
+        parent[x] = parent[parent[x]];
+        x = parent[x];
+    }
+    return x;
+}
+
+static PyObject *clusters(PyObject *self, PyObject *args) {
+    Py_buffer Pb, Ob, Sb, Kb, Tb, Lb;
+    double cell, r2;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*ddw*", &Pb, &Ob, &Sb, &Kb, &Tb, &cell, &r2, &Lb)) return NULL;
+    PyObject *result = NULL;
+    int64_t N = Pb.len / 24, C = Kb.len / 8, T = Tb.len / 8;
+    const int64_t *start = Sb.buf, *order = Ob.buf;
+    int ok = Pb.len % 24 == 0 && Ob.len == N * 8 && Kb.len % 8 == 0 && Sb.len == (C + 1) * 8 && T > C &&
+             (T & (T - 1)) == 0 && Tb.len % 8 == 0 && Lb.len == N * 8 && cell > 0 && r2 <= cell * cell &&
+             start[0] == 0 && start[C] == N;
+    for (int64_t c = 0; ok && c < C; c++) ok = start[c] < start[c + 1];
+    for (int64_t e = 0; ok && e < N; e++) ok = order[e] >= 0 && order[e] < N;
+    if (!ok) {
+        PyErr_SetString(PyExc_ValueError, "clusters: points (N, 3) float64, order (N,) in 0..N-1, start (C + 1,) "
+                                          "ascending from 0 to N, keys (C,), table (T,) int64, out (N,) int64, "
+                                          "r2 <= cell^2");
+        goto done;
+    }
+    const double *pts = Pb.buf;
+    const int64_t *keys = Kb.buf, *tab = Tb.buf;
+    int64_t *parent = Lb.buf;
+    int corrupt = 0;
+    Py_BEGIN_ALLOW_THREADS
+    const double inv = 1.0 / cell;
+    const uint64_t mask = (uint64_t)T - 1;
+    for (int64_t i = 0; i < N; i++) parent[i] = i;
+    for (int64_t e = 0; e < N; e++) {
+        const double *p = pts + 3 * e;
+        int64_t cx = (int64_t)floor(p[0] * inv), cy = (int64_t)floor(p[1] * inv), cz = (int64_t)floor(p[2] * inv);
+        double ox = p[0] - cx * cell, oy = p[1] - cy * cell, oz = p[2] - cz * cell;
+        double gx[3] = {ox * ox, 0, (cell - ox) * (cell - ox)}, gy[3] = {oy * oy, 0, (cell - oy) * (cell - oy)},
+               gz[3] = {oz * oz, 0, (cell - oz) * (cell - oz)};
+        for (int o = 0; o < 27; o++) {
+            int dx = OFFSETS[o][0], dy = OFFSETS[o][1], dz = OFFSETS[o][2];
+            if (gx[dx + 1] + gy[dy + 1] + gz[dz + 1] > r2 + 1e-12) continue;
+            int64_t c = lookup(tab, mask, keys, C, pack(cx + dx, cy + dy, cz + dz));
+            if (c == -2) corrupt = 1;
+            if (c < 0) continue;
+            for (int64_t f = start[c] > e + 1 ? start[c] : e + 1; f < start[c + 1]; f++) {  /* each pair once */
+                const double *s = pts + 3 * f;
+                double a = p[0] - s[0], d2 = a * a;
+                a = p[1] - s[1];
+                d2 += a * a;
+                a = p[2] - s[2];
+                d2 += a * a;
+                if (d2 <= r2) {
+                    int64_t ra = root(parent, order[e]), rb = root(parent, order[f]);
+                    if (ra < rb) parent[rb] = ra;
+                    else if (rb < ra) parent[ra] = rb;
+                }
+            }
+        }
+    }
+    for (int64_t i = 0; i < N; i++) parent[i] = root(parent, i);
+    Py_END_ALLOW_THREADS
+    if (corrupt) {
+        PyErr_SetString(PyExc_ValueError, "clusters: the hash table was not made by table() from these keys");
+        goto done;
+    }
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    PyBuffer_Release(&Pb);
+    PyBuffer_Release(&Ob);
+    PyBuffer_Release(&Sb);
+    PyBuffer_Release(&Kb);
+    PyBuffer_Release(&Tb);
+    PyBuffer_Release(&Lb);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"table", table, METH_VARARGS, "table(keys, T) -> bytes of (T,) int64: an open-addressing hash table of the keys"},
     {"nearest", nearest, METH_VARARGS,
      "nearest(points, order, start, keys, table, cell, queries, r2, out_d2, out_j, first): the nearest point within "
      "reach"},
+    {"clusters", clusters, METH_VARARGS,
+     "clusters(points, order, start, keys, table, cell, r2, out): each point's lowest index in its component"},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_grid", NULL, -1, methods};

@@ -231,9 +231,15 @@ def euclidean_clusters(points: np.ndarray, tolerance: float, min_size: int = 1) 
     n = len(points)
     if n == 0:
         return np.zeros(0, np.int64)
-    pairs = cKDTree(points).query_pairs(tolerance, output_type="ndarray")
-    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    _, lab = connected_components(g, directed=False)
+    from .grid import components
+
+    lowest = components(points, tolerance)  # the compiled kernel, on a grid of the tolerance
+    if lowest is not None:
+        lab = np.unique(lowest, return_inverse=True)[1]
+    else:
+        pairs = cKDTree(points).query_pairs(tolerance, output_type="ndarray")
+        g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        _, lab = connected_components(g, directed=False)
     sizes = np.bincount(lab)
     first = np.full(len(sizes), n)
     np.minimum.at(first, lab, np.arange(n))

@@ -70,6 +70,21 @@ class CellGrid:
         return d2, j
 
 
+def components(points: np.ndarray, tolerance: float) -> np.ndarray | None:
+    """(N,) int64: for each point (N, 3), the lowest index in its connected component, points linked where they lie
+    at most ``tolerance`` m apart (as ``cKDTree.query_pairs`` decides it, to the bit); None where the kernel is not
+    built, ``tolerance`` is not finite and positive, or the cloud is too wide for the grid's keys."""
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    if _grid is None or not 0 < tolerance < np.inf or points.ndim != 2 or points.shape[1] != 3:
+        return None
+    g = CellGrid(points, tolerance * (1 + 1e-9))  # a pair within tolerance lies in neighbouring cells
+    if not g.usable:
+        return None
+    out = np.empty(len(points), np.int64)
+    _grid.clusters(g.points, g.order, g.start, g.keys, g.table, g.cell, tolerance * tolerance, out)
+    return out
+
+
 class GridTree(cKDTree):
     """A ``cKDTree`` (same constructor) whose nearest-neighbour queries within a finite ``distance_upper_bound``
     run on a hashed grid of that radius (module docstring): ``query(x, distance_upper_bound=r)`` for (Q, 3) ``x``

@@ -116,3 +116,46 @@ def test_detection_is_the_same_with_the_grid_and_with_the_kd_tree(synth_small, l
     with_tree = Detector(library).detect(frame).detections
     assert len(with_grid) >= 2
     assert [d.to_dict() for d in with_grid] == [d.to_dict() for d in with_tree]
+
+
+def test_components_link_what_query_pairs_links(rng):
+    """``grid.components`` links the pairs that ``cKDTree.query_pairs`` returns, to the bit: pairs placed within
+    a few units in the last place of the tolerance either way, and a noisy surface; each point gets the lowest index
+    of its component. ``cloud.euclidean_clusters`` gives the same labels with it and without it."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from pcdet import cloud, grid
+
+    r = 0.012
+    a = rng.uniform(-0.3, 0.3, (3000, 3))
+    d = rng.normal(size=(3000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    b = a + d * r * (1 + rng.integers(-3, 4, (3000, 1)) * 1.1e-16)
+    for pts in (np.vstack([a, b]), _surface(rng, 6000)):
+        pairs = cKDTree(pts).query_pairs(r, output_type="ndarray")
+        n = len(pts)
+        _, lab = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)))
+        lowest = np.full(lab.max() + 1, n)
+        np.minimum.at(lowest, lab, np.arange(n))
+        assert np.array_equal(grid.components(pts, r), lowest[lab])
+        with_kernel = cloud.euclidean_clusters(pts, r, 5)
+        kernel, grid._grid = grid._grid, None
+        try:
+            assert np.array_equal(cloud.euclidean_clusters(pts, r, 5), with_kernel)
+        finally:
+            grid._grid = kernel
+    # the boundary pairs matter: some within the tolerance by a unit in the last place are linked, some not
+    linked = np.isin(np.arange(3000), cKDTree(np.vstack([a, b])).query_pairs(r, output_type="ndarray")[:, 0])
+    assert 0.2 < linked.mean() < 0.9
+
+
+def test_components_refuse_a_malformed_grid():
+    from pcdet import _grid
+    from pcdet.grid import CellGrid
+
+    g = CellGrid(np.array([[0.0, 0, 0], [0.5, 0, 0]]), 0.1)
+    with pytest.raises(ValueError):  # a radius beyond the cell
+        _grid.clusters(g.points, g.order, g.start, g.keys, g.table, g.cell, 0.2 ** 2, np.empty(2, np.int64))
+    with pytest.raises(ValueError):  # an index outside the cloud
+        _grid.clusters(g.points, np.array([0, 5]), g.start, g.keys, g.table, g.cell, 0.01, np.empty(2, np.int64))
