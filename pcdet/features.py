@@ -46,7 +46,7 @@ def compiled() -> bool:
     return _fpfh is not None and grid.compiled()
 
 
-def fpfh(points: np.ndarray, normals: np.ndarray, keypoints: np.ndarray, cfg: FeatureConfig, workers: int = 1,
+def fpfh(points: np.ndarray, normals: np.ndarray, keypoints: np.ndarray, cfg: FeatureConfig, *, workers: int = 1,
          kernel: bool = True) -> np.ndarray:
     """FPFH (Rusu et al. 2009) of ``points[keypoints]``, as open3d's legacy implementation defines it.
 
