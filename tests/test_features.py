@@ -154,14 +154,23 @@ def test_alpha_at_the_edges_of_its_bins_is_binned_as_open3d_bins_it():
     assert tried >= 50
 
 
-def test_a_cloud_too_wide_for_the_grid_is_described_by_open3d():
-    """Points 100 km apart do not fit the grid's keys: open3d describes them, and the result is its own."""
+def test_a_cloud_too_wide_for_the_grid_is_described_by_open3d(monkeypatch):
+    """Points 100 km apart do not fit the grid's keys: open3d describes them (it is asked), and the result is its
+    own."""
+    from pcdet import features
+
     pts, nrm = _cube_samples()
     pts = np.vstack([pts, [[1e5, 0, 0]]])
     nrm = np.vstack([nrm, [[0, 0, 1.0]]])
     kp = np.arange(0, len(pts), 97)
     cfg = FeatureConfig(radius=0.02, max_nn=60)
+    asked = []
+    real = features._fpfh_open3d
+    monkeypatch.setattr(features, "_fpfh_open3d", lambda *a: (asked.append(1), real(*a))[1])
     np.testing.assert_array_equal(fpfh(pts, nrm, kp, cfg), _open3d_fpfh(pts, nrm, 0.02, 60)[kp])
+    assert asked == [1]
+    fpfh(pts[:-1], nrm[:-1], kp[:-1], cfg)  # without the far point the kernel describes them
+    assert asked == [1]
 
 
 def test_the_kernel_refuses_malformed_arrays():
