@@ -2,6 +2,7 @@
  * key, the lookup of a cell by its key, and the 27 cells around a query's in the order they are visited. */
 #ifndef PCDET_CELLS_H
 #define PCDET_CELLS_H
+#include <math.h>
 #include <stdint.h>
 
 static inline uint64_t mix(uint64_t k) {  /* a 64-bit finaliser (MurmurHash3's): nearby cells spread apart */
@@ -35,5 +36,40 @@ static const int8_t OFFSETS[27][3] = {
     {-1, -1, 0}, {-1, 1, 0}, {1, -1, 0}, {1, 1, 0}, {-1, 0, -1}, {-1, 0, 1}, {1, 0, -1}, {1, 0, 1},
     {0, -1, -1}, {0, -1, 1}, {0, 1, -1}, {0, 1, 1},
     {-1, -1, -1}, {-1, -1, 1}, {-1, 1, -1}, {-1, 1, 1}, {1, -1, -1}, {1, -1, 1}, {1, 1, -1}, {1, 1, 1}};
+
+/* |p - s|^2, summed from left to right (the kernels are compiled without fused multiply-adds): as the KD-tree sums it */
+static inline double dist2(const double *p, const double *s) {
+    double a = p[0] - s[0], d2 = a * a;
+    a = p[1] - s[1];
+    d2 += a * a;
+    a = p[2] - s[2];
+    d2 += a * a;
+    return d2;
+}
+
+/* Where p lies: its cell c[3] and, per axis a, the squared gaps from p to the near faces of the neighbouring cells
+ * below, its own (0) and above, gap[a][0..2]. 0 where p lies outside every cell a key can name. */
+static inline int locate(const double *p, double cell, double inv, int64_t c[3], double gap[3][3]) {
+    for (int a = 0; a < 3; a++) {
+        double f = floor(p[a] * inv);
+        if (!(fabs(f) < (1 << 20))) return 0;
+        c[a] = (int64_t)f;
+        double o = p[a] - c[a] * cell;
+        gap[a][0] = o * o;
+        gap[a][1] = 0;
+        gap[a][2] = (cell - o) * (cell - o);
+    }
+    return 1;
+}
+
+/* how far at least the neighbouring cell OFFSETS[o] lies from the point whose gaps locate() gave, squared */
+static inline double gap_to(const double gap[3][3], int o) {
+    return gap[0][OFFSETS[o][0] + 1] + gap[1][OFFSETS[o][1] + 1] + gap[2][OFFSETS[o][2] + 1];
+}
+
+/* the key of the neighbouring cell OFFSETS[o] of cell c */
+static inline int64_t neighbour_key(const int64_t c[3], int o) {
+    return pack(c[0] + OFFSETS[o][0], c[1] + OFFSETS[o][1], c[2] + OFFSETS[o][2]);
+}
 
 #endif

@@ -154,25 +154,16 @@ static int grow(Buffer *b) {
  * set where the hash table is not one table() made */
 static int64_t neighbours(const Grid *g, const double *p, double r2, int64_t max_nn, Buffer *b, int *corrupt) {
     int64_t n = 0;
-    double fx = floor(p[0] * g->inv), fy = floor(p[1] * g->inv), fz = floor(p[2] * g->inv);
-    if (!(fabs(fx) < (1 << 20) && fabs(fy) < (1 << 20) && fabs(fz) < (1 << 20))) return 0;
-    int64_t cx = (int64_t)fx, cy = (int64_t)fy, cz = (int64_t)fz;
-    double ox = p[0] - cx * g->cell, oy = p[1] - cy * g->cell, oz = p[2] - cz * g->cell;
-    double gx[3] = {ox * ox, 0, (g->cell - ox) * (g->cell - ox)}, gy[3] = {oy * oy, 0, (g->cell - oy) * (g->cell - oy)},
-           gz[3] = {oz * oz, 0, (g->cell - oz) * (g->cell - oz)};
+    int64_t cp[3];
+    double gap[3][3];
+    if (!locate(p, g->cell, g->inv, cp, gap)) return 0;
     for (int o = 0; o < 27; o++) {
-        int dx = OFFSETS[o][0], dy = OFFSETS[o][1], dz = OFFSETS[o][2];
-        if (gx[dx + 1] + gy[dy + 1] + gz[dz + 1] > r2 + 1e-12) continue;
-        int64_t c = lookup(g->tab, g->mask, g->keys, g->C, pack(cx + dx, cy + dy, cz + dz));
+        if (gap_to(gap, o) > r2 + 1e-12) continue;
+        int64_t c = lookup(g->tab, g->mask, g->keys, g->C, neighbour_key(cp, o));
         if (c == -2) *corrupt = 1;
         if (c < 0) continue;
         for (int64_t e = g->start[c]; e < g->start[c + 1]; e++) {
-            const double *s = g->pts + 3 * e;
-            double a = p[0] - s[0], d2 = a * a;
-            a = p[1] - s[1];
-            d2 += a * a;
-            a = p[2] - s[2];
-            d2 += a * a;
+            double d2 = dist2(p, g->pts + 3 * e);
             if (n == b->cap && !grow(b)) return -1;  /* room for this candidate, kept only if within reach */
             Near *slot = b->near + n;
             slot->d2 = d2;

@@ -88,26 +88,16 @@ static PyObject *nearest(PyObject *self, PyObject *args) {
         const double *p = q + 3 * i;
         double best = r2;
         int64_t bj = -1;
-        double fx = floor(p[0] * inv), fy = floor(p[1] * inv), fz = floor(p[2] * inv);
-        if (fabs(fx) < (1 << 20) && fabs(fy) < (1 << 20) && fabs(fz) < (1 << 20)) {  /* else out of every cell */
-            int64_t cx = (int64_t)fx, cy = (int64_t)fy, cz = (int64_t)fz;
-            /* squared gaps to the neighbouring cells' near faces, per axis: below, own (0), above */
-            double ox = p[0] - cx * cell, oy = p[1] - cy * cell, oz = p[2] - cz * cell;
-            double gx[3] = {ox * ox, 0, (cell - ox) * (cell - ox)}, gy[3] = {oy * oy, 0, (cell - oy) * (cell - oy)},
-                   gz[3] = {oz * oz, 0, (cell - oz) * (cell - oz)};
+        int64_t cp[3];
+        double gap[3][3];
+        if (locate(p, cell, inv, cp, gap)) {  /* else out of every cell */
             for (int o = 0; o < 27; o++) {
-                int dx = OFFSETS[o][0], dy = OFFSETS[o][1], dz = OFFSETS[o][2];
-                if (gx[dx + 1] + gy[dy + 1] + gz[dz + 1] > best + 1e-12) continue;
-                int64_t c = lookup(tab, mask, keys, C, pack(cx + dx, cy + dy, cz + dz));
+                if (gap_to(gap, o) > best + 1e-12) continue;
+                int64_t c = lookup(tab, mask, keys, C, neighbour_key(cp, o));
                 if (c == -2) corrupt = 1;
                 if (c < 0) continue;
                 for (int64_t e = start[c]; e < start[c + 1]; e++) {
-                    const double *s = pts + 3 * e;
-                    double a = p[0] - s[0], d2 = a * a;
-                    a = p[1] - s[1];
-                    d2 += a * a;
-                    a = p[2] - s[2];
-                    d2 += a * a;
+                    double d2 = dist2(p, pts + 3 * e);
                     if (d2 < best || (d2 == best && bj >= 0 && order[e] < order[bj])) {
                         best = d2;
                         bj = e;
@@ -175,23 +165,16 @@ static PyObject *clusters(PyObject *self, PyObject *args) {
     for (int64_t i = 0; i < N; i++) parent[i] = i;
     for (int64_t e = 0; e < N; e++) {
         const double *p = pts + 3 * e;
-        int64_t cx = (int64_t)floor(p[0] * inv), cy = (int64_t)floor(p[1] * inv), cz = (int64_t)floor(p[2] * inv);
-        double ox = p[0] - cx * cell, oy = p[1] - cy * cell, oz = p[2] - cz * cell;
-        double gx[3] = {ox * ox, 0, (cell - ox) * (cell - ox)}, gy[3] = {oy * oy, 0, (cell - oy) * (cell - oy)},
-               gz[3] = {oz * oz, 0, (cell - oz) * (cell - oz)};
+        int64_t cp[3];
+        double gap[3][3];
+        if (!locate(p, cell, inv, cp, gap)) continue;  /* (the grid's own points always lie in a cell) */
         for (int o = 0; o < 27; o++) {
-            int dx = OFFSETS[o][0], dy = OFFSETS[o][1], dz = OFFSETS[o][2];
-            if (gx[dx + 1] + gy[dy + 1] + gz[dz + 1] > r2 + 1e-12) continue;
-            int64_t c = lookup(tab, mask, keys, C, pack(cx + dx, cy + dy, cz + dz));
+            if (gap_to(gap, o) > r2 + 1e-12) continue;
+            int64_t c = lookup(tab, mask, keys, C, neighbour_key(cp, o));
             if (c == -2) corrupt = 1;
             if (c < 0) continue;
             for (int64_t f = start[c] > e + 1 ? start[c] : e + 1; f < start[c + 1]; f++) {  /* each pair once */
-                const double *s = pts + 3 * f;
-                double a = p[0] - s[0], d2 = a * a;
-                a = p[1] - s[1];
-                d2 += a * a;
-                a = p[2] - s[2];
-                d2 += a * a;
+                double d2 = dist2(p, pts + 3 * f);
                 if (d2 <= r2) {
                     int64_t ra = root(parent, order[e]), rb = root(parent, order[f]);
                     if (ra < rb) parent[rb] = ra;
