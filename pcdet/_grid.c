@@ -57,6 +57,12 @@ done:
     return result;
 }
 
+/* what a call returns after its loop: None, or the error of a hash table that table() did not make */
+static PyObject *finish(const char *name, int corrupt) {
+    if (corrupt) return PyErr_Format(PyExc_ValueError, "%s: the hash table was not made by table() from these keys", name);
+    Py_RETURN_NONE;
+}
+
 static PyObject *nearest(PyObject *self, PyObject *args) {
     Py_buffer Pb, Ob, Sb, Kb, Tb, Qb, Db, Jb;
     double cell, r2;
@@ -110,12 +116,7 @@ static PyObject *nearest(PyObject *self, PyObject *args) {
         oj[i] = bj >= 0 ? order[bj] : -1;
     }
     Py_END_ALLOW_THREADS
-    if (corrupt) {
-        PyErr_SetString(PyExc_ValueError, "nearest: the hash table was not made by table() from these keys");
-        goto done;
-    }
-    result = Py_None;
-    Py_INCREF(result);
+    result = finish("nearest", corrupt);
 done:
     PyBuffer_Release(&Pb);
     PyBuffer_Release(&Ob);
@@ -185,12 +186,7 @@ static PyObject *clusters(PyObject *self, PyObject *args) {
     }
     for (int64_t i = 0; i < N; i++) parent[i] = root(parent, i);
     Py_END_ALLOW_THREADS
-    if (corrupt) {
-        PyErr_SetString(PyExc_ValueError, "clusters: the hash table was not made by table() from these keys");
-        goto done;
-    }
-    result = Py_None;
-    Py_INCREF(result);
+    result = finish("clusters", corrupt);
 done:
     PyBuffer_Release(&Pb);
     PyBuffer_Release(&Ob);
