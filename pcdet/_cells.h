@@ -37,6 +37,22 @@ static const int8_t OFFSETS[27][3] = {
     {0, -1, -1}, {0, -1, 1}, {0, 1, -1}, {0, 1, 1},
     {-1, -1, -1}, {-1, -1, 1}, {-1, 1, -1}, {-1, 1, 1}, {1, -1, -1}, {1, -1, 1}, {1, 1, -1}, {1, 1, 1}};
 
+/* Whether arrays of these byte lengths make a grid (the layout _grid.c describes): N points (pts_len = 24 N), order
+ * (N,), C keys (keys_len = 8 C), start (C + 1,) rising from 0 to N, a table of T slots (table_len = 8 T), T a power
+ * of two above C, cell > 0; with check_order, every entry of order in 0..N-1 (for calls that index by them). */
+static inline int grid_ok(int64_t pts_len, const int64_t *order, int64_t order_len, const int64_t *start,
+                          int64_t start_len, int64_t keys_len, int64_t table_len, double cell, int check_order) {
+    int64_t N = pts_len / 24, C = keys_len / 8, T = table_len / 8;
+    if (pts_len % 24 || order_len != N * 8 || keys_len % 8 || start_len != (C + 1) * 8 || T <= C || (T & (T - 1)) ||
+        table_len % 8 || !(cell > 0) || start[0] != 0 || start[C] != N)
+        return 0;
+    for (int64_t c = 0; c < C; c++)
+        if (start[c] >= start[c + 1]) return 0;
+    for (int64_t e = 0; check_order && e < N; e++)
+        if (order[e] < 0 || order[e] >= N) return 0;
+    return 1;
+}
+
 /* |p - s|^2, summed from left to right (the kernels are compiled without fused multiply-adds): as the KD-tree sums it */
 static inline double dist2(const double *p, const double *s) {
     double a = p[0] - s[0], d2 = a * a;

@@ -248,12 +248,8 @@ static inline int alpha_bin(double y, double x) {
 
 static int parse_grid(Py_buffer *Pb, Py_buffer *Ob, Py_buffer *Sb, Py_buffer *Kb, Py_buffer *Tb, double cell, Grid *g) {
     int64_t N = Pb->len / 24, C = Kb->len / 8, T = Tb->len / 8;
-    const int64_t *start = Sb->buf;
-    int ok = Pb->len % 24 == 0 && Ob->len == N * 8 && Kb->len % 8 == 0 && Sb->len == (C + 1) * 8 && T > C &&
-             (T & (T - 1)) == 0 && Tb->len % 8 == 0 && cell > 0 && start[0] == 0 && start[C] == N;
-    for (int64_t c = 0; ok && c < C; c++) ok = start[c] < start[c + 1];
-    const int64_t *order = Ob->buf;
-    for (int64_t e = 0; ok && e < N; e++) ok = order[e] >= 0 && order[e] < N;
+    const int64_t *start = Sb->buf, *order = Ob->buf;
+    int ok = grid_ok(Pb->len, order, Ob->len, start, Sb->len, Kb->len, Tb->len, cell, 1);
     g->pts = Pb->buf;
     g->order = order;
     g->start = start;

@@ -70,12 +70,10 @@ static PyObject *nearest(PyObject *self, PyObject *args) {
     if (!PyArg_ParseTuple(args, "y*y*y*y*y*dy*dw*w*p", &Pb, &Ob, &Sb, &Kb, &Tb, &cell, &Qb, &r2, &Db, &Jb, &first))
         return NULL;
     PyObject *result = NULL;
-    int64_t N = Pb.len / 24, C = Kb.len / 8, T = Tb.len / 8, Q = Qb.len / 24;
+    int64_t C = Kb.len / 8, T = Tb.len / 8, Q = Qb.len / 24;
     const int64_t *start = Sb.buf;
-    int ok = Pb.len % 24 == 0 && Ob.len == N * 8 && Kb.len % 8 == 0 && Sb.len == (C + 1) * 8 && T > C
-             && (T & (T - 1)) == 0 && Tb.len % 8 == 0 && Qb.len % 24 == 0 && Db.len == Q * 8 && Jb.len == Q * 8
-             && cell > 0 && r2 <= cell * cell && start[0] == 0 && start[C] == N;
-    for (int64_t c = 0; ok && c < C; c++) ok = start[c] < start[c + 1];
+    int ok = grid_ok(Pb.len, Ob.buf, Ob.len, start, Sb.len, Kb.len, Tb.len, cell, 0) && Qb.len % 24 == 0 &&
+             Db.len == Q * 8 && Jb.len == Q * 8 && r2 <= cell * cell;  /* order is only copied out: not checked */
     if (!ok) {
         PyErr_SetString(PyExc_ValueError, "nearest: points (N, 3) float64, order (N,), start (C + 1,) ascending from 0 "
                                           "to N, keys (C,), table (T,) int64, queries (Q, 3) float64, out_d2 (Q,) "
@@ -145,11 +143,8 @@ static PyObject *clusters(PyObject *self, PyObject *args) {
     PyObject *result = NULL;
     int64_t N = Pb.len / 24, C = Kb.len / 8, T = Tb.len / 8;
     const int64_t *start = Sb.buf, *order = Ob.buf;
-    int ok = Pb.len % 24 == 0 && Ob.len == N * 8 && Kb.len % 8 == 0 && Sb.len == (C + 1) * 8 && T > C &&
-             (T & (T - 1)) == 0 && Tb.len % 8 == 0 && Lb.len == N * 8 && cell > 0 && r2 <= cell * cell &&
-             start[0] == 0 && start[C] == N;
-    for (int64_t c = 0; ok && c < C; c++) ok = start[c] < start[c + 1];
-    for (int64_t e = 0; ok && e < N; e++) ok = order[e] >= 0 && order[e] < N;
+    int ok = grid_ok(Pb.len, order, Ob.len, start, Sb.len, Kb.len, Tb.len, cell, 1) && Lb.len == N * 8 &&
+             r2 <= cell * cell;
     if (!ok) {
         PyErr_SetString(PyExc_ValueError, "clusters: points (N, 3) float64, order (N,) in 0..N-1, start (C + 1,) "
                                           "ascending from 0 to N, keys (C,), table (T,) int64, out (N,) int64, "
