@@ -260,8 +260,8 @@ def _run_tracking(rec, lib, cfg, out: Path, redetect_every: int, workers: int, e
 
 @app.command()
 @guard
-def odometry(recording: Path = typer.Argument(..., help="Recording folder: BOP, TUM RGB-D, Redwood, 7-Scenes, "
-                                              "depth/ + camera.json."),
+def odometry(recording: Path = typer.Argument(..., help="Recording folder: BOP, TUM RGB-D, Redwood, 7-Scenes (a "
+                                              "sequence, or a scene of seq-NN sequences), depth/ + camera.json."),
              out: Path = typer.Option(..., help="Output folder: trajectory.txt (TUM format) and odometry.toml."),
              format: str = typer.Option("auto", help="Reader: auto, bop, tum, redwood, 7scenes, folder."),
              method: Optional[str] = typer.Option(None, help="icp (point-to-plane ICP against a local map of "

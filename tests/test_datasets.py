@@ -1,6 +1,7 @@
 """Recording readers: each format read from files written here (or shipped in ../shared/data), the same frames
 and poses coming back, auto-detection, and a clear error for an unknown layout."""
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -176,6 +177,36 @@ def test_sevenscenes_layout_reads_depth_in_mm_and_camera_to_world_poses():
     moved, _ = cKDTree(p0).query(p40 @ T[:3, :3].T + T[:3, 3])
     unmoved, _ = cKDTree(p0).query(p40)
     assert np.median(moved) < 0.012 and np.median(unmoved) > 0.04
+
+
+def test_sevenscenes_scene_folder_reads_each_sequence_as_a_scene(tmp_path):
+    """A scene folder as 7-Scenes ships it (``chess/seq-01``, ``chess/seq-02``, the intrinsics beside them): each
+    ``seq-NN`` is scene NN, its frames numbered from 0 in file-number order and read from its own folder, with its
+    own poses; two folders with one number are refused, naming both."""
+    src = shared("sevenscenes")
+    scene = tmp_path / "chess"
+    for seq, frames in (("seq-02", (0, 2, 4)), ("seq-01", (10, 11))):  # made out of order: read in number order
+        (scene / seq).mkdir(parents=True)
+        for i in frames:
+            for kind in ("depth.png", "pose.txt"):
+                shutil.copy(src / f"frame-{i:06d}.{kind}", scene / seq / f"frame-{i:06d}.{kind}")
+    K = np.array([[500.0, 0, 321], [0, 501, 239], [0, 0, 1]])
+    (scene / "camera-intrinsics.txt").write_text("\n".join(" ".join(map(str, r)) for r in K))
+    rec = open_recording(scene)
+    assert rec.format == "7scenes"
+    assert [(r.scene_id, r.im_id) for r in rec] == [(1, 0), (1, 1), (2, 0), (2, 1), (2, 2)]
+    assert rec.source(rec.images[1]).endswith("seq-01/frame-000011.depth.png")
+    assert rec.source(rec.images[4]).endswith("seq-02/frame-000004.depth.png")
+    f = rec.frame(rec.images[4])
+    assert (f.camera.fx, f.camera.fy, f.camera.cx, f.camera.width) == (500.0, 501.0, 321.0, 640)
+    flat = open_recording(src)
+    assert f.info["frame"] == 4 and np.array_equal(f.depth, flat.frame(flat.images[4]).depth)
+    poses = rec.camera_poses()
+    assert np.allclose(poses[rec.images[2]], np.loadtxt(src / "frame-000000.pose.txt"))
+    (scene / "seq-2").mkdir()
+    with pytest.raises(InputError) as e:
+        open_recording(scene)
+    assert "seq-02 and seq-2 are both sequence 2" in str(e.value)
 
 
 def test_sevenscenes_bad_pose_file_names_the_file(tmp_path):

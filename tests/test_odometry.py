@@ -153,6 +153,41 @@ def _sevenscenes_ate(first: int, stop: int) -> float:
     return ate_rmse(list(odometry((rec.frame(r) for r in refs), OdometryConfig())), gt)
 
 
+def test_odometry_command_on_a_scene_folder_of_sequences(tmp_path):
+    """A 7-Scenes scene folder with two sequences (20 real frames each, from two parts of the clip): one TUM
+    trajectory per sequence, each starting at the identity and registered on its own frames (the same poses as
+    the sequence run alone), and an ATE row per scene."""
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from pcdet.cli import app
+    from pcdet.io.trajectory import read_tum
+
+    from .conftest import shared
+
+    src = shared("sevenscenes")
+    scene = tmp_path / "scene"
+    for seq, first in (("seq-01", 0), ("seq-02", 150)):
+        (scene / seq).mkdir(parents=True)
+        for i in range(first, first + 20):
+            for kind in ("depth.png", "pose.txt"):
+                shutil.copy(src / f"frame-{i:06d}.{kind}", scene / seq)
+    shutil.copy(src / "camera-intrinsics.txt", scene)
+    res = CliRunner().invoke(app, ["odometry", str(scene), "--out", str(tmp_path / "odo")])
+    assert res.exit_code == 0, res.output
+    alone = CliRunner().invoke(app, ["odometry", str(scene / "seq-02"), "--out", str(tmp_path / "odo2")])
+    assert alone.exit_code == 0, alone.output
+    for sid in (1, 2):
+        stamps, poses = read_tum(tmp_path / "odo" / f"trajectory_{sid:06d}.txt")
+        assert stamps == [float(i) for i in range(20)] and np.allclose(poses[0], np.eye(4))
+    _, seq2 = read_tum(tmp_path / "odo" / "trajectory_000002.txt")
+    _, seq2_alone = read_tum(tmp_path / "odo2" / "trajectory.txt")
+    assert np.allclose(seq2, seq2_alone, atol=1e-9)
+    rows = [line.split("│")[1:3] for line in res.output.splitlines() if line.count("│") >= 5]
+    assert [(int(a), int(b)) for a, b in rows] == [(1, 20), (2, 20)]
+
+
 def test_depth_noise_weights_on_real_kinect_frames():
     """The first 122 real 7-Scenes frames (up to the ground truth's 36 mm jump between frames 121 and 122): the
     default, each point weighted by the inverse of a structured-light sensor's depth noise variance, stays under
