@@ -114,7 +114,13 @@ def kiss_as_shipped(frames):
 
 
 def table(rec, label):
-    refs = list(rec)
+    """One table per sequence of ``rec`` (a 7-Scenes scene folder or a BOP dataset may hold several)."""
+    scenes = sorted({r.scene_id for r in rec})
+    for sid in scenes:
+        _table(rec, [r for r in rec if r.scene_id == sid], label if len(scenes) == 1 else f"{label}, scene {sid}")
+
+
+def _table(rec, refs, label):
     gtd = rec.camera_poses()
     gt = [np.linalg.inv(gtd[refs[0]]) @ gtd[r] for r in refs]
     frames = [rec.frame(r) for r in refs]
