@@ -126,7 +126,9 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
         models: Optional[Path] = typer.Option(None, help="Model folder (default: the dataset's models/)."),
         out: Path = typer.Option(..., help="Output folder: results.csv, frames/*.json, config.toml."),
         format: str = typer.Option("auto", help="Reader: auto, bop, tum, redwood, 7scenes, folder, clouds."),
-        targets: Optional[str] = typer.Option(None, help="'gt': localise the objects listed in scene_gt.json."),
+        targets: Optional[str] = typer.Option(None, help="'gt': localise the objects listed in scene_gt.json; "
+                                              "'bop19' or a JSON file: only the images of a BOP target list "
+                                              "(test_targets_bop19.json), its objects and counts."),
         pipeline: Optional[str] = typer.Option(None, help="Preset name or TOML file."),
         grouping: Optional[str] = typer.Option(None, help="Grouping method: ransac, gc or hough."),
         units: str = typer.Option("auto", help="Model units: auto, m, cm, mm (BOP models/: mm)."),
@@ -154,8 +156,6 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
     from .datasets import open_recording
     from .runner import RunFolder, RunOptions
 
-    if targets not in (None, "gt"):
-        fail(f"--targets takes 'gt', got {targets!r}")
     if workers < 1:
         fail(f"--workers must be >= 1, got {workers}")
     if threads is not None and threads < 1:
@@ -176,10 +176,12 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
     if targets == "gt" and rec.targets(rec.images[0]) is None:
         fail(f"{recording}: --targets gt needs per-frame labels (a BOP scene_gt.json); this is a {rec.format} "
               "recording")
+    if targets not in (None, "gt"):
+        _use_target_list(rec, targets, recording)
     models = models or rec.models_dir
     if models is None:
         fail(f"{recording}: no models/ folder; pass --models")
-    folder = RunFolder(out, rec, cfg, resume=resume, overwrite=overwrite, targets=targets == "gt",
+    folder = RunFolder(out, rec, cfg, resume=resume, overwrite=overwrite, targets=_targets_used(rec, targets),
                        mode="track" if track else "detect", version=__version__)
     try:
         lib = _library(models, cfg, units)
@@ -187,10 +189,30 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
             return _run_tracking(rec, lib, cfg, folder.path, redetect_every, workers, executor, ray_address,
                                  resume=resume, times=times)
         return _run_detection(rec, lib, cfg, folder, RunOptions(
-            targets=targets == "gt", resume=resume, workers=workers, threads=threads, executor=executor,
+            targets=targets is not None, resume=resume, workers=workers, threads=threads, executor=executor,
             ray_address=ray_address, record_time=times, version=__version__))
     finally:
         folder.close()
+
+
+def _use_target_list(rec, spec: str, recording: Path) -> None:
+    """``--targets bop19`` or ``--targets FILE``: keep only the images of a BOP target list (``restrict_to``)."""
+    if rec.format != "bop":
+        fail(f"{recording}: --targets {spec} reads a BOP target list; this is a {rec.format} recording")
+    rec.restrict_to(spec)
+    if len(rec) == 0:
+        fail(f"{recording}: no image of the target list {rec.target_file}")
+
+
+def _targets_used(rec, targets: Optional[str]):
+    """What ``run.json`` records of ``--targets``: False, True for gt, or the target list's file and digest (so
+    that ``--resume`` with another list is refused)."""
+    if targets in (None, "gt"):
+        return targets == "gt"
+    import hashlib
+
+    digest = hashlib.sha256(rec.target_file.read_bytes()).hexdigest()[:16]
+    return f"{rec.target_file.resolve()} (sha256 {digest})"
 
 
 def _run_detection(rec, lib, cfg, folder, opts):
@@ -412,6 +434,10 @@ def eval_cmd(dataset: Path = typer.Argument(..., help="BOP dataset with ground t
              models: Optional[Path] = typer.Option(None, help="Model folder (default: DATASET/models)."),
              json_out: Optional[Path] = typer.Option(None, "--json", help="Write the tables as JSON."),
              units: str = typer.Option("auto", help="Model units."),
+             targets: Optional[str] = typer.Option(None, help="'bop19' or a JSON file: score as BOP'19 does, on "
+                                                   "the images and objects of a BOP target list "
+                                                   "(test_targets_bop19.json), instances at least 10 % visible, "
+                                                   "the inst_count best estimates of each."),
              ):
     """Score a BOP results file: ADD, ADD-S, MSSD, MSPD recall and BOP-style AR, per object and overall."""
     from .config import PipelineConfig
@@ -423,6 +449,8 @@ def eval_cmd(dataset: Path = typer.Argument(..., help="BOP dataset with ground t
     if json_out:
         check_file(json_out, "evaluation JSON")
     ds = BopDataset(dataset)
+    if targets not in (None, "gt"):  # gt: every instance of scene_gt.json, the default
+        _use_target_list(ds, targets, dataset)
     models = models or ds.models_dir
     if models is None:
         fail(f"{dataset}: no models/ folder; pass --models")
@@ -459,7 +487,9 @@ def _print_eval(ev, lib):
 def diagnose(dataset: Path = typer.Argument(..., help="BOP dataset with ground truth."),
              models: Optional[Path] = typer.Option(None, help="Model folder (default: DATASET/models)."),
              targets: Optional[str] = typer.Option("gt", help="'gt': give the detector the objects present (BOP "
-                                                   "localisation); 'none': search the whole library."),
+                                                   "localisation); 'none': search the whole library; 'bop19' or "
+                                                   "a JSON file: the images, objects and counts of a BOP target "
+                                                   "list."),
              pipeline: Optional[str] = typer.Option(None, help="Preset name or TOML file."),
              grouping: Optional[str] = typer.Option(None, help="Grouping method: ransac, gc or hough."),
              metric: str = typer.Option("add", help="Pose error: add or adds (for symmetric objects)."),
@@ -475,14 +505,14 @@ def diagnose(dataset: Path = typer.Argument(..., help="BOP dataset with ground t
     from .diagnose import STAGES, Diagnosis, diagnose_frame
     from .io.atomic import atomic_write_text
 
-    if targets not in ("gt", "none"):
-        fail(f"--targets takes gt or none, got {targets!r}")
     if metric not in ("add", "adds"):
         fail(f"--metric takes add or adds, got {metric!r}")
     if json_out:
         check_file(json_out, "diagnosis JSON")
     cfg = _pipeline(pipeline, None, grouping)
     ds = BopDataset(dataset)
+    if targets not in ("gt", "none"):
+        _use_target_list(ds, targets, dataset)
     models = models or ds.models_dir
     if models is None:
         fail(f"{dataset}: no models/ folder; pass --models")
@@ -495,8 +525,9 @@ def diagnose(dataset: Path = typer.Argument(..., help="BOP dataset with ground t
             frame = ds.frame(ref)
             if depth_only:
                 frame = dataclasses.replace(frame, rgb=None)
-            rows += diagnose_frame(det, frame, ds.gt(ref), ds.targets(ref) if targets == "gt" else None,
-                                   metric=metric, scene_id=ref.scene_id, im_id=ref.im_id)
+            tg = None if targets == "none" else ds.targets(ref)
+            rows += diagnose_frame(det, frame, ds.scored_gt(ref), tg, metric=metric, scene_id=ref.scene_id,
+                                   im_id=ref.im_id)
             prog.update(task, advance=1)
     diag = Diagnosis(rows)
     t = Table(title=f"{metric.upper()} in diameters; kp: scene keypoints of the model's grid on the instance / "

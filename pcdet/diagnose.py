@@ -164,11 +164,11 @@ class Diagnosis:
 
 def diagnose(rec, det: Detector, *, targets: bool = True, metric: str = "add", threshold: float = 0.1,
              frames: list | None = None, on_frame=None) -> Diagnosis:
-    """Diagnose every instance of every frame of ``rec`` (a BOP dataset: it needs ``gt``); ``targets`` gives
+    """Diagnose every scored instance of every frame of ``rec`` (a BOP dataset: ``scored_gt``); ``targets`` gives
     the detector the objects present (BOP localisation); ``frames`` restricts to some frame refs."""
     out = []
     for ref in (frames if frames is not None else list(rec)):
-        gts = rec.gt(ref)
+        gts = rec.scored_gt(ref)
         res = diagnose_frame(det, rec.frame(ref), gts, rec.targets(ref) if targets else None, metric=metric,
                              threshold=threshold, scene_id=ref.scene_id, im_id=ref.im_id)
         out += res

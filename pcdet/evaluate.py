@@ -80,9 +80,15 @@ def evaluate(ds: BopDataset, estimates: list[dict], library: ModelLibrary, *, wi
 
     An estimate of an object that is not among the models is an error (``InputError``); estimates for images
     the dataset does not hold are left out with a warning that lists their lines. With ``with_vsd`` every
-    estimate and instance of an image is rendered, for VSD against the image's depth."""
+    estimate and instance of an image is rendered, for VSD against the image's depth.
+
+    When ``ds`` is restricted to a BOP target list (``BopDataset.restrict_to``), the scoring is BOP'19's: only
+    the listed images and objects count, an instance less than 10 % visible is neither found nor missed
+    (``BopDataset.scored_gt``), and of each listed object only its ``inst_count`` best-scoring estimates are
+    scored; estimates for images the list does not name are left out with a warning."""
     symmetries = symmetries or {}
     models = {m.obj_id: m for m in library}
+    listed = getattr(ds, "target_list", None)
     known_images = {(img.scene_id, img.im_id) for img in ds}
     by_img: dict[tuple[int, int], list[dict]] = {}
     stray: list[str] = []
@@ -97,20 +103,25 @@ def evaluate(ds: BopDataset, estimates: list[dict], library: ModelLibrary, *, wi
         by_img.setdefault(key, []).append(e)
     warnings = []
     if stray:
-        warnings.append(f"{len(stray)} estimate(s) for images the dataset does not hold were left out: "
+        where = "the target list does not name" if listed is not None else "the dataset does not hold"
+        warnings.append(f"{len(stray)} estimate(s) for images {where} were left out: "
                         + ", ".join(stray[:10]) + (", ..." if len(stray) > 10 else ""))
     objects: list[ObjectErrors] = []
     for img in ds:
-        gts = ds.gt(img)
+        gts = ds.scored_gt(img)
         ests = by_img.get((img.scene_id, img.im_id), [])
         cam = ds.camera(img)
         frame = ds.frame(img) if with_vsd else None
-        for oid in sorted({g["obj_id"] for g in gts} | {e["obj_id"] for e in ests}):
+        wanted = listed[(img.scene_id, img.im_id)] if listed is not None else None
+        oids = sorted(wanted if wanted is not None else {g["obj_id"] for g in gts} | {e["obj_id"] for e in ests})
+        for oid in oids:
             m = models.get(oid)
             if m is None:
                 continue  # ground truth of an object the library lacks: nothing to score it with
             g_o = [g for g in gts if g["obj_id"] == oid]
             e_o = [e for e in ests if e["obj_id"] == oid]
+            if wanted is not None:  # BOP'19: the inst_count best estimates (scored_gt: the visible instances)
+                e_o = sorted(e_o, key=lambda e: -e["score"])[:wanted[oid]]
             o = object_errors(g_o, e_o, m.points, cam.K, m.diameter, symmetries=symmetries.get(oid),
                               scene_id=img.scene_id, im_id=img.im_id, obj_id=oid)
             if frame is not None:

@@ -49,7 +49,8 @@ class RunSummary:
 class RunOptions:
     """How ``run_recording`` runs.
 
-    targets : localise the objects the recording labels per frame (BOP scene_gt.json); needs labels.
+    targets : localise the objects the recording labels per frame (``rec.targets``: BOP scene_gt.json, or a BOP
+        target list the dataset was restricted to); needs labels.
     resume : keep frames whose JSON already exists in the output folder and detect only the others.
     workers : processes to spread frames over (1: this process); with Ray, the CPUs of a local instance.
     threads : the detector's threads in this process when ``workers`` is 1 (None: the machine's cores); worker
@@ -80,16 +81,17 @@ class RunFolder:
 
     A folder that already holds a run (frames or ``run.json``) is refused unless ``resume`` (continue it; its
     ``run.json`` must name the same recording, format, targets, mode and pipeline) or ``overwrite`` (its
-    frames and pcdet's files in it are removed first). Raises ``InputError`` naming the folder."""
+    frames and pcdet's files in it are removed first). ``targets``: False, True (scene_gt.json) or a string
+    naming the target list. Raises ``InputError`` naming the folder."""
 
     def __init__(self, out, rec, cfg: PipelineConfig, *, resume: bool = False, overwrite: bool = False,
-                 targets: bool = False, mode: str = "detect", version: str = ""):
+                 targets: bool | str = False, mode: str = "detect", version: str = ""):
         self.path = check_folder(out, "output folder")
         self.frames = self.path / "frames"
         self._lock = FolderLock(self.path).acquire()
         try:
             self.manifest = {"recording": str(Path(rec.root).resolve()), "format": rec.format, "frames": len(rec),
-                             "targets": bool(targets), "mode": mode, "pipeline": cfg.to_dict()}
+                             "targets": targets, "mode": mode, "pipeline": cfg.to_dict()}
             self._reconcile(resume, overwrite)
             atomic_write_text(self.path / "run.json", json.dumps({"pcdet_version": version, **self.manifest},
                                                                  indent=1))

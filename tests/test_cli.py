@@ -174,6 +174,33 @@ def test_eval_prints_and_writes_json(synth_small, tmp_path):
     assert "ADD-S" in res.output
 
 
+def test_run_and_eval_on_a_bop_target_list(synth_small, tmp_path):
+    """--targets FILE (BOP'19 test_targets form): only the listed image is detected, for the listed objects and
+    counts; run.json names the list and its digest, so --resume with another list is refused; eval scores the
+    listed instances only; a recording that is not BOP, or a list that is not there, is one clear error line."""
+    scene_gt = json.loads((synth_small / "test" / "000002" / "scene_gt.json").read_text())
+    objs = sorted({e["obj_id"] for e in scene_gt["0"]})[:2]
+    listed = tmp_path / "targets.json"
+    listed.write_text(json.dumps([{"scene_id": 2, "im_id": 0, "obj_id": o, "inst_count": 1} for o in objs]))
+    res = _cli("run", synth_small, "--out", tmp_path / "r", "--targets", listed)
+    assert res.exit_code == 0, res.output
+    assert [p.name for p in (tmp_path / "r" / "frames").glob("*.json")] == ["000002_000000.json"]
+    rows = list(csv.DictReader(open(tmp_path / "r" / "results.csv")))
+    assert 1 <= len(rows) <= 2 and {int(r["obj_id"]) for r in rows} <= set(objs)
+    run = json.loads((tmp_path / "r" / "run.json").read_text())
+    assert "targets.json (sha256 " in run["targets"] and run["frames"] == 1
+    listed.write_text(json.dumps([{"scene_id": 2, "im_id": 0, "obj_id": objs[0], "inst_count": 1}]))
+    assert "targets: " in _error_line(_cli("run", synth_small, "--out", tmp_path / "r", "--targets", listed,
+                                           "--resume"))
+    res = _cli("eval", synth_small, tmp_path / "r" / "results.csv", "--targets", listed, "--json", tmp_path / "e.json")
+    assert res.exit_code == 0, res.output
+    assert json.loads((tmp_path / "e.json").read_text())["overall"]["instances"] == 1
+    assert "reads a BOP target list; this is a" in _error_line(
+        _cli("run", shared("sevenscenes"), "--models", MODELS, "--out", tmp_path / "x", "--targets", "bop19"))
+    assert "test_targets_bop19.json" in _error_line(_cli("eval", synth_small, tmp_path / "r" / "results.csv",
+                                                         "--targets", "bop19"))
+
+
 def test_run_times_fills_the_time_column(synth_small, tmp_path):
     """--times writes each frame's measured seconds (the sum of its stage times) into every row of that frame."""
     assert _cli("run", synth_small, "--out", tmp_path / "r", "--times").exit_code == 0

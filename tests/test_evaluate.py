@@ -69,3 +69,83 @@ def test_malformed_rows_name_the_file_and_line(synth_small, library, tmp_path):
     assert ev.warnings == ["1 estimate(s) for images the dataset does not hold were left out: line 3 (scene 7 "
                            "image 0)"]
     assert ev.overall["estimates"] == 1
+
+
+def _target_list(path, entries):
+    import json
+
+    path.write_text(json.dumps([{"scene_id": s, "im_id": i, "obj_id": o, "inst_count": c} for s, i, o, c in entries]))
+    return path
+
+
+def test_a_bop_target_list_restricts_images_and_targets(synth_small, tmp_path):
+    """restrict_to keeps the listed images only, in split order, and their targets are the list's; a list that
+    is missing, malformed, names an object twice or an image the split lacks is refused naming the file."""
+    import shutil
+
+    from pcdet.errors import InputError
+
+    ds = BopDataset(synth_small)
+    objs = {img: sorted(ds.targets(img)) for img in ds}
+    first, last = ds.images[0], ds.images[-1]
+    path = _target_list(tmp_path / "t.json", [(last.scene_id, 0, objs[last][0], 1),
+                                              (first.scene_id, 0, objs[first][1], 2)])
+    ds.restrict_to(str(path))
+    assert ds.images == [first, last] and len(ds) == 2
+    assert ds.targets(first) == {objs[first][1]: 2} and ds.targets(last) == {objs[last][0]: 1}
+    for text, words in (('{"scene_id": 1}', "JSON list"), ('[{"scene_id": 1, "im_id": 0}]', "entry 0 is not"),
+                        ('[{"scene_id": 1, "im_id": 0, "obj_id": 2, "inst_count": 0}]', "inst_count >= 1"),
+                        ('[{"scene_id": 1, "im_id": 0, "obj_id": 2, "inst_count": 1}, '
+                         '{"scene_id": 1, "im_id": 0, "obj_id": 2, "inst_count": 1}]', "lists object 2 twice"),
+                        ('[{"scene_id": 9, "im_id": 0, "obj_id": 2, "inst_count": 1}]', "scene 9 image 0"),
+                        ("[]", "empty")):
+        (tmp_path / "bad.json").write_text(text)
+        with pytest.raises(InputError) as e:
+            BopDataset(synth_small).restrict_to(str(tmp_path / "bad.json"))
+        assert "bad.json" in str(e.value) and words in str(e.value), (text, str(e.value))
+    copy = tmp_path / "copy"
+    shutil.copytree(synth_small, copy)
+    with pytest.raises(InputError) as e:
+        BopDataset(copy).restrict_to("bop19")
+    assert "test_targets_bop19.json" in str(e.value) and "not found" in str(e.value)
+    _target_list(copy / "test_targets_bop19.json", [(first.scene_id, 0, objs[first][0], 1)])
+    ds = BopDataset(copy)
+    ds.restrict_to("bop19")
+    assert ds.images == [first]
+
+
+def test_bop19_scoring_with_a_target_list(synth_small, library, tmp_path):
+    """Scored on a target list as BOP'19 scores: an instance under 10 % visible is neither found nor missed, only
+    the inst_count best-scoring estimates of an object count (a wrong one scored higher displaces the right one),
+    and listed objects only. Without the list the same estimates find every instance."""
+    import json
+    import shutil
+
+    copy = tmp_path / "ds"
+    shutil.copytree(synth_small, copy)
+    ds = BopDataset(copy)
+    img = ds.images[0]
+    info_path = ds.scene_dir(img.scene_id) / "scene_gt_info.json"
+    info = json.loads(info_path.read_text())
+    info[str(img.im_id)][0]["visib_fract"] = 0.05  # the image's first instance: almost hidden
+    info_path.write_text(json.dumps(info))
+    ds = BopDataset(copy)
+    gts = ds.gt(img)
+    hidden, other = gts[0]["obj_id"], gts[1]["obj_id"]
+    ests = [e for e in _gt_estimates(ds) if not (e["scene_id"] == img.scene_id and e["obj_id"] == hidden)]
+    T = next(e for e in ests if e["scene_id"] == img.scene_id and e["obj_id"] == other)["T_cam_model"].copy()
+    T[0, 3] += library.by_id(other).diameter  # one diameter off, scored above the right estimate
+    ests.append({"scene_id": img.scene_id, "im_id": img.im_id, "obj_id": other, "score": 2.0, "T_cam_model": T})
+    plain = evaluate(ds, ests, library, with_vsd=False).overall
+    assert plain["instances"] == 9 and plain["recall_add"] == pytest.approx(8 / 9)  # the hidden one is missed
+    listed = [(i.scene_id, i.im_id, o, n) for i in ds.images for o, n in ds.targets(i).items()]
+    ds.restrict_to(str(_target_list(tmp_path / "t.json", listed)))
+    bop = evaluate(ds, ests, library, with_vsd=False).overall
+    assert bop["instances"] == 8 and bop["recall_add"] == pytest.approx(7 / 8)  # the displaced one is missed
+    # a list naming only the hidden object's image and the other object: that one instance is scored
+    ds = BopDataset(copy)
+    ds.restrict_to(str(_target_list(tmp_path / "t2.json", [(img.scene_id, img.im_id, other, 1)])))
+    ev = evaluate(ds, ests + [{"scene_id": ds.images[0].scene_id + 1, "im_id": 0, "obj_id": other, "score": 1.0,
+                               "T_cam_model": T}], library, with_vsd=False)
+    assert ev.overall["instances"] == 1 and ev.overall["recall_add"] == 0.0
+    assert "images the target list does not name" in ev.warnings[0]

@@ -15,6 +15,8 @@ from ..io.jsonfile import read_json
 from .base import FrameRef
 
 BopImage = FrameRef  # one image of a BOP split: (scene_id, im_id)
+TARGET_LISTS = {"bop19": "test_targets_bop19.json"}  # --targets NAME: the file in the dataset folder
+VISIB_GT_MIN = 0.1  # BOP'19: with a target list, an instance less visible than this is neither found nor missed
 
 
 class BopDataset:
@@ -22,7 +24,8 @@ class BopDataset:
 
     ``root`` may be the dataset folder (holding ``models/`` and a split folder such as ``test/``) or a split
     folder itself (holding scene folders). Camera poses come from ``cam_R_w2c`` / ``cam_t_w2c`` in
-    ``scene_camera.json`` when present (``pcdet synth --sequence`` writes them).
+    ``scene_camera.json`` when present (``pcdet synth --sequence`` writes them). ``restrict_to`` narrows it to the
+    images, objects and counts of a BOP target list (``test_targets_bop19.json``).
     """
 
     format = "bop"
@@ -40,6 +43,8 @@ class BopDataset:
                 raise InputError("no BOP split folder (scene folders with scene_camera.json) found", root)
             self.split_dir, self.root = cands[0], root
         self._json: dict[tuple[int, str], dict] = {}
+        self.target_list: dict[tuple[int, int], dict[int, int]] | None = None  # see restrict_to
+        self.target_file: Path | None = None
         self.models_dir = self.root / "models" if (self.root / "models").is_dir() else None
         cam = self.root / "camera.json"
         self.base_camera = read_json(cam) if cam.is_file() else {}
@@ -127,12 +132,69 @@ class BopDataset:
             out.append({"obj_id": int(e["obj_id"]), "T_cam_model": pose_from_bop(e), "visib_fract": vf})
         return out
 
+    def scored_gt(self, img: BopImage) -> list[dict]:
+        """The ground truth that is scored (``gt``'s entries): every instance, or with a target list in use
+        (``restrict_to``) the listed objects' instances at least ``VISIB_GT_MIN`` visible, as BOP'19 scores (an
+        instance without ``visib_fract`` counts)."""
+        gts = self.gt(img)
+        if self.target_list is None:
+            return gts
+        wanted = self.target_list[(img.scene_id, img.im_id)]
+        return [g for g in gts if g["obj_id"] in wanted and (g["visib_fract"] is None
+                                                              or g["visib_fract"] >= VISIB_GT_MIN)]
+
     def targets(self, img: BopImage) -> dict[int, int]:
-        """``{obj_id: instance count}`` from scene_gt.json (BOP's localisation task)."""
+        """``{obj_id: instance count}`` (BOP's localisation task): from the target list when one is in use
+        (``restrict_to``), else from scene_gt.json."""
+        if self.target_list is not None:
+            return dict(self.target_list[(img.scene_id, img.im_id)])
         t: dict[int, int] = {}
         for g in self.gt(img):
             t[g["obj_id"]] = t.get(g["obj_id"], 0) + 1
         return t
+
+    def restrict_to(self, spec: str) -> None:
+        """Keep only the images of a BOP target list, whose objects and counts become ``targets``: ``spec`` is
+        "bop19" (the dataset's ``test_targets_bop19.json``, the images BOP's challenges evaluate) or the path of
+        a file in that form (``read_target_list``). ``InputError`` names the file when it is missing, malformed
+        or lists an image the split does not hold."""
+        path = self.root / TARGET_LISTS[spec] if spec in TARGET_LISTS else Path(spec)
+        if not path.is_file():
+            raise InputError("target list not found" + (f" (--targets {spec} reads {TARGET_LISTS[spec]} in the "
+                                                        "dataset folder)" if spec in TARGET_LISTS else ""), path)
+        listed = read_target_list(path)
+        held = set(self.images)
+        missing = [k for k in listed if BopImage(*k) not in held]
+        if missing:
+            raise InputError(f"lists {len(missing)} image(s) that {self.split_dir} does not hold (the first: scene "
+                             f"{missing[0][0]} image {missing[0][1]})", path)
+        self.images = [img for img in self.images if (img.scene_id, img.im_id) in listed]
+        self.target_list = listed
+        self.target_file = path
+
+
+def read_target_list(path) -> dict[tuple[int, int], dict[int, int]]:
+    """``{(scene_id, im_id): {obj_id: inst_count}}`` from a BOP target list: a JSON list of ``{"scene_id",
+    "im_id", "obj_id", "inst_count"}`` (BOP'19, ``test_targets_bop19.json``; ``inst_count`` counts the instances
+    at least 10 % visible). ``InputError`` names the file and the first bad entry."""
+    doc = read_json(path, expect_object=False, what="target list")
+    if not isinstance(doc, list):
+        raise InputError("a BOP target list is a JSON list of {scene_id, im_id, obj_id, inst_count}", path)
+    out: dict[tuple[int, int], dict[int, int]] = {}
+    for n, e in enumerate(doc):
+        try:
+            s, i, o, c = (e[k] for k in ("scene_id", "im_id", "obj_id", "inst_count"))
+        except (TypeError, KeyError):
+            raise InputError(f"entry {n} is not {{scene_id, im_id, obj_id, inst_count}} (BOP'19 targets; a "
+                             "BOP'24 list names no objects)", path) from None
+        if not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in (s, i, o, c)) or c < 1:
+            raise InputError(f"entry {n}: ids must be whole numbers >= 0 and inst_count >= 1, got {e}", path)
+        if o in out.setdefault((s, i), {}):
+            raise InputError(f"entry {n}: scene {s} image {i} lists object {o} twice", path)
+        out[(s, i)][o] = c
+    if not out:
+        raise InputError("the target list is empty", path)
+    return out
 
 
 def _is_split(p: Path) -> bool:
