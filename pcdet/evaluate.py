@@ -88,7 +88,7 @@ def evaluate(ds: BopDataset, estimates: list[dict], library: ModelLibrary, *, wi
     scored; estimates for images the list does not name are left out with a warning."""
     symmetries = symmetries or {}
     models = {m.obj_id: m for m in library}
-    listed = getattr(ds, "target_list", None)
+    listed = ds.target_list
     known_images = {(img.scene_id, img.im_id) for img in ds}
     by_img: dict[tuple[int, int], list[dict]] = {}
     stray: list[str] = []
