@@ -441,7 +441,7 @@ def eval_cmd(dataset: Path = typer.Argument(..., help="BOP dataset with ground t
              ):
     """Score a BOP results file: ADD, ADD-S, MSSD, MSPD recall and BOP-style AR, per object and overall."""
     from .config import PipelineConfig
-    from .datasets.bop import BopDataset
+    from .datasets.bop import VISIB_GT_MIN, BopDataset
     from .evaluate import evaluate, load_symmetries
     from .io.atomic import atomic_write_text
     from .io.bop import read_results_csv
@@ -460,6 +460,10 @@ def eval_cmd(dataset: Path = typer.Argument(..., help="BOP dataset with ground t
     for w in ev.warnings:
         console.print(f"[yellow]warning:[/] {escape(str(results))}: {escape(w)}", highlight=False, soft_wrap=True)
     _print_eval(ev, lib)
+    if ds.target_list is not None:
+        console.print(f"scored as BOP'19 on the target list {escape(str(ds.target_file))}: {len(ds)} image(s), "
+                      f"{ev.overall['instances']} instance(s) at least {VISIB_GT_MIN:g} visible", highlight=False,
+                      soft_wrap=True)
     if json_out:
         atomic_write_text(json_out, json.dumps(ev.to_dict(), indent=1, default=float))
         console.print(f"written: {json_out}")

@@ -195,6 +195,7 @@ def test_run_and_eval_on_a_bop_target_list(synth_small, tmp_path):
     res = _cli("eval", synth_small, tmp_path / "r" / "results.csv", "--targets", listed, "--json", tmp_path / "e.json")
     assert res.exit_code == 0, res.output
     assert json.loads((tmp_path / "e.json").read_text())["overall"]["instances"] == 1
+    assert "scored as BOP'19 on the target list" in res.output and "1 image(s), 1 instance(s)" in res.output
     assert "reads a BOP target list; this is a" in _error_line(
         _cli("run", shared("sevenscenes"), "--models", MODELS, "--out", tmp_path / "x", "--targets", "bop19"))
     assert "test_targets_bop19.json" in _error_line(_cli("eval", synth_small, tmp_path / "r" / "results.csv",
