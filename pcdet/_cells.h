@@ -53,7 +53,8 @@ static inline int grid_ok(int64_t pts_len, const int64_t *order, int64_t order_l
     return 1;
 }
 
-/* |p - s|^2, summed from left to right (the kernels are compiled without fused multiply-adds): as the KD-tree sums it */
+/* |p - s|^2, summed from left to right (the kernels are compiled without fused multiply-adds): as the KD-tree
+ * sums it */
 static inline double dist2(const double *p, const double *s) {
     double a = p[0] - s[0], d2 = a * a;
     a = p[1] - s[1];
@@ -87,5 +88,25 @@ static inline double gap_to(const double gap[3][3], int o) {
 static inline int64_t neighbour_key(const int64_t c[3], int o) {
     return pack(c[0] + OFFSETS[o][0], c[1] + OFFSETS[o][1], c[2] + OFFSETS[o][2]);
 }
+
+#ifdef Py_PYTHON_H
+/* A call's grid arguments: the buffers Pb (points), Ob (order), Sb (start), Kb (keys), Tb (table), then cell. */
+#define GRID_ARGS "y*y*y*y*y*d"
+#define RELEASE_GRID                                                                                                 \
+    PyBuffer_Release(&Pb);                                                                                           \
+    PyBuffer_Release(&Ob);                                                                                           \
+    PyBuffer_Release(&Sb);                                                                                           \
+    PyBuffer_Release(&Kb);                                                                                           \
+    PyBuffer_Release(&Tb)
+
+/* what a call returns after its loop: None, or its failure (memory ran out, a hash table that table() did not
+ * make), named after the call */
+static PyObject *grid_finish(const char *name, int nomem, int corrupt) {
+    if (nomem) return PyErr_NoMemory();
+    if (corrupt) return PyErr_Format(PyExc_ValueError, "%s: the hash table was not made by table() from these keys",
+                                     name);
+    Py_RETURN_NONE;
+}
+#endif
 
 #endif

@@ -139,6 +139,11 @@ typedef struct {
     int64_t cap;
 } Buffer;
 
+static void drop(Buffer *b) {
+    free(b->near);
+    free(b->d2);
+}
+
 static int grow(Buffer *b) {
     int64_t cap = b->cap ? 2 * b->cap : 256;
     Near *near = realloc(b->near, (size_t)cap * sizeof(Near));
@@ -263,14 +268,6 @@ static int parse_grid(Py_buffer *Pb, Py_buffer *Ob, Py_buffer *Sb, Py_buffer *Kb
     return ok;
 }
 
-#define GRID_ARGS "y*y*y*y*y*d"
-#define RELEASE_GRID                                                                                                 \
-    PyBuffer_Release(&Pb);                                                                                           \
-    PyBuffer_Release(&Ob);                                                                                           \
-    PyBuffer_Release(&Sb);                                                                                           \
-    PyBuffer_Release(&Kb);                                                                                           \
-    PyBuffer_Release(&Tb)
-
 static const char *GRID_ERR = "grid: points (N, 3) float64, order (N,) in 0..N-1, start (C + 1,) ascending from "
                               "0 to N, keys (C,), table (T,) int64";
 
@@ -281,16 +278,6 @@ static int valid_indices(const Py_buffer *Wb, int64_t n) {
     for (int64_t i = 0; i < Wb->len / 8; i++)
         if (w[i] < 0 || w[i] >= n) return 0;
     return 1;
-}
-
-/* what a call returns after its loop: None, or the failure (no memory, a corrupt table) */
-static PyObject *finish(int nomem, int corrupt) {
-    if (nomem) return PyErr_NoMemory();
-    if (corrupt) {
-        PyErr_SetString(PyExc_ValueError, "the hash table was not made by table() from these keys");
-        return NULL;
-    }
-    Py_RETURN_NONE;
 }
 
 static PyObject *reach(PyObject *self, PyObject *args) {
@@ -319,10 +306,9 @@ static PyObject *reach(PyObject *self, PyObject *args) {
         if (n < 0) nomem = 1;
         for (int64_t k = 0; k < n; k++) mark[b.near[k].j] = 1;
     }
-    free(b.near);
-    free(b.d2);
+    drop(&b);
     Py_END_ALLOW_THREADS
-    result = finish(nomem, corrupt);
+    result = grid_finish("reach", nomem, corrupt);
 done:
     RELEASE_GRID;
     PyBuffer_Release(&Xb);
@@ -375,10 +361,9 @@ static PyObject *spfh(PyObject *self, PyObject *args) {
             h[22 + bin(11 * (f[2] + 1.0) * 0.5)] += incr;
         }
     }
-    free(b.near);
-    free(b.d2);
+    drop(&b);
     Py_END_ALLOW_THREADS
-    result = finish(nomem, corrupt);
+    result = grid_finish("spfh", nomem, corrupt);
 done:
     RELEASE_GRID;
     PyBuffer_Release(&Nb);
@@ -445,14 +430,13 @@ static PyObject *fpfh(PyObject *self, PyObject *args) {
             if (sum[b] != 0.0) sum[b] = 100.0 / sum[b];
         for (int b = 0; b < 33; b++) f[b] = f[b] * sum[b / 11] + H[33 * own + b];
     }
-    free(b.near);
-    free(b.d2);
+    drop(&b);
     Py_END_ALLOW_THREADS
     if (missing) {
         PyErr_SetString(PyExc_ValueError, "fpfh: a neighbour's histogram is not in spfh (row -1 or out of range)");
         goto done;
     }
-    result = finish(nomem, corrupt);
+    result = grid_finish("fpfh", nomem, corrupt);
 done:
     RELEASE_GRID;
     PyBuffer_Release(&Xb);

@@ -57,17 +57,11 @@ done:
     return result;
 }
 
-/* what a call returns after its loop: None, or the error of a hash table that table() did not make */
-static PyObject *finish(const char *name, int corrupt) {
-    if (corrupt) return PyErr_Format(PyExc_ValueError, "%s: the hash table was not made by table() from these keys", name);
-    Py_RETURN_NONE;
-}
-
 static PyObject *nearest(PyObject *self, PyObject *args) {
     Py_buffer Pb, Ob, Sb, Kb, Tb, Qb, Db, Jb;
     double cell, r2;
     int first;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*dy*dw*w*p", &Pb, &Ob, &Sb, &Kb, &Tb, &cell, &Qb, &r2, &Db, &Jb, &first))
+    if (!PyArg_ParseTuple(args, GRID_ARGS "y*dw*w*p", &Pb, &Ob, &Sb, &Kb, &Tb, &cell, &Qb, &r2, &Db, &Jb, &first))
         return NULL;
     PyObject *result = NULL;
     int64_t C = Kb.len / 8, T = Tb.len / 8, Q = Qb.len / 24;
@@ -114,13 +108,9 @@ static PyObject *nearest(PyObject *self, PyObject *args) {
         oj[i] = bj >= 0 ? order[bj] : -1;
     }
     Py_END_ALLOW_THREADS
-    result = finish("nearest", corrupt);
+    result = grid_finish("nearest", 0, corrupt);
 done:
-    PyBuffer_Release(&Pb);
-    PyBuffer_Release(&Ob);
-    PyBuffer_Release(&Sb);
-    PyBuffer_Release(&Kb);
-    PyBuffer_Release(&Tb);
+    RELEASE_GRID;
     PyBuffer_Release(&Qb);
     PyBuffer_Release(&Db);
     PyBuffer_Release(&Jb);
@@ -139,7 +129,7 @@ static inline int64_t root(int64_t *parent, int64_t x) {
 static PyObject *clusters(PyObject *self, PyObject *args) {
     Py_buffer Pb, Ob, Sb, Kb, Tb, Lb;
     double cell, r2;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*ddw*", &Pb, &Ob, &Sb, &Kb, &Tb, &cell, &r2, &Lb)) return NULL;
+    if (!PyArg_ParseTuple(args, GRID_ARGS "dw*", &Pb, &Ob, &Sb, &Kb, &Tb, &cell, &r2, &Lb)) return NULL;
     PyObject *result = NULL;
     int64_t N = Pb.len / 24, C = Kb.len / 8, T = Tb.len / 8;
     const int64_t *start = Sb.buf, *order = Ob.buf;
@@ -181,13 +171,9 @@ static PyObject *clusters(PyObject *self, PyObject *args) {
     }
     for (int64_t i = 0; i < N; i++) parent[i] = root(parent, i);
     Py_END_ALLOW_THREADS
-    result = finish("clusters", corrupt);
+    result = grid_finish("clusters", 0, corrupt);
 done:
-    PyBuffer_Release(&Pb);
-    PyBuffer_Release(&Ob);
-    PyBuffer_Release(&Sb);
-    PyBuffer_Release(&Kb);
-    PyBuffer_Release(&Tb);
+    RELEASE_GRID;
     PyBuffer_Release(&Lb);
     return result;
 }
