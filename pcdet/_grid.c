@@ -2,9 +2,9 @@
  *
  * A grid: N points (N, 3) float64 sorted by cell, the C distinct cells' packed keys (C,) int64 in that order, start
  * (C + 1,) int64 (cell c holds the sorted points start[c] .. start[c + 1] - 1), and an open-addressing hash table
- * (T,) int64, T a power of two above C, holding c + 1 for each cell (0: empty slot; anything else is refused). A point's cell is
- * floor(x * inv), floor(y * inv), floor(z * inv) with inv = 1 / cell; its key packs the three in 21 bits each
- * (offset by 2^20; grid.py keeps them in range).
+ * (T,) int64, T a power of two above C, holding c + 1 for each cell (0: empty slot; anything else is refused). A
+ * point's cell is floor(x * inv), floor(y * inv), floor(z * inv) with inv = 1 / cell; its key packs the three in 21
+ * bits each (offset by 2^20; grid.py keeps them in range).
  *
  * table(keys, T) -> bytes of (T,) int64: the hash table of the keys.
  *

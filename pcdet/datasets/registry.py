@@ -16,7 +16,8 @@ READERS = {"bop": BopDataset, "tum": TumRecording, "redwood": RedwoodRecording, 
            "folder": FolderRecording, "clouds": CloudFolder}
 
 FORMAT_HELP = ("bop (split/scene/scene_camera.json), tum (rgb.txt + depth.txt), redwood (depth/ + color/ + "
-               "Open3D camera JSON or .log poses), 7scenes (frame-XXXXXX.depth.png + .pose.txt, or seq-NN folders of them), folder (depth/*.png + "
+               "Open3D camera JSON or .log poses), 7scenes (frame-XXXXXX.depth.png + .pose.txt, or seq-NN folders of "
+               "them), folder (depth/*.png + "
                "camera.json), clouds (*.ply/*.pcd/*.xyz)")
 
 
