@@ -316,8 +316,9 @@ def odometry(recording: Path = typer.Argument(..., help="Recording folder: BOP, 
     if not run.poses:
         fail(f"{recording}: no frame could be read")
     files = write_odometry(out, run, cfg)
+    recovered = f", {run.recovered} recovered (ICP had lost the map)" if run.recovered else ""
     console.print(f"{len(run.poses)} frame(s), odometry {run.frames_per_second:.1f} frames/s, {len(run.failed)} "
-                  f"skipped -> {', '.join(str(f) for f in files)}")
+                  f"skipped{recovered} -> {', '.join(str(f) for f in files)}")
     try:
         truth = rec.camera_poses()
     except InputError as e:  # the trajectory stands without them: say why there are no errors
