@@ -1,6 +1,7 @@
 """The ``pcdet`` command. The only place that prints progress or exits; the library returns and raises."""
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import sys
@@ -299,10 +300,11 @@ def odometry(recording: Path = typer.Argument(..., help="Recording folder: BOP, 
     if method not in (None, "kiss", "icp", "kiss+icp"):
         fail(f"--method takes kiss, icp or kiss+icp, got {method!r}")
     cfg = OdometryConfig() if method is None else OdometryConfig(method=method)
-    check_folder(out, "output folder")
     rec = open_recording(recording, format)
     if len(rec) == 0:
         fail(f"{recording}: no frames")
+    made = not out.exists()
+    check_folder(out, "output folder")  # before the work: an unwritable OUT fails at once
     with _progress(rate=True, detections=False) as prog:
         task = prog.add_task("odometry", total=len(rec))
 
@@ -314,6 +316,9 @@ def odometry(recording: Path = typer.Argument(..., help="Recording folder: BOP, 
 
         run = run_odometry(rec, cfg, on_frame=on_frame)
     if not run.poses:
+        if made:  # nothing to write: leave no empty folder behind
+            with contextlib.suppress(OSError):
+                out.rmdir()
         fail(f"{recording}: no frame could be read")
     files = write_odometry(out, run, cfg)
     recovered = f", {run.recovered} recovered (ICP had lost the map)" if run.recovered else ""

@@ -121,6 +121,15 @@ def test_odometry_command_on_real_kinect_frames(tmp_path):
     (rec_dir / "frame-000024.depth.png").write_bytes(data[: len(data) // 3])
     bad = CliRunner().invoke(app, ["odometry", str(rec_dir), "--out", str(tmp_path / "odo"), "--method", "slam"])
     assert bad.exit_code != 0 and "--method takes kiss, icp or kiss+icp, got 'slam'" in bad.output
+    # a recording none of whose frames can be read: one error line, and no empty output folder left behind
+    unreadable = tmp_path / "unreadable"
+    unreadable.mkdir()
+    shutil.copy(src / "camera-intrinsics.txt", unreadable)
+    for i in range(3):
+        (unreadable / f"frame-{i:06d}.depth.png").write_bytes(data[:100])
+    none = CliRunner().invoke(app, ["odometry", str(unreadable), "--out", str(tmp_path / "none")])
+    assert none.exit_code != 0 and "no frame could be read" in none.output, none.output
+    assert "Traceback" not in none.output and not (tmp_path / "none").exists()
     res = CliRunner().invoke(app, ["odometry", str(rec_dir), "--out", str(tmp_path / "odo")])
     assert res.exit_code == 0, res.output
     assert "skipped scene 1 image 12" in res.output and "ATE (mm)" in res.output
