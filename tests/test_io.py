@@ -110,6 +110,26 @@ def test_read_json_names_the_file(tmp_path):
         read_json(tmp_path / "d.json")
 
 
+def test_an_ascii_ply_with_nan_and_inf_rows_reads_its_finite_points(tmp_path):
+    """An ASCII PLY as PCL writes an organised cloud (rows of nan, and here inf) with normals and 8-bit colours:
+    the finite points read back in file order with their normals and colours (colours within 1e-9 of value / 255).
+    open3d's reader stopped at the inf and returned the rest undefined (values of order 1e-310). A token that is
+    not a number is refused in one error naming the file."""
+    head = ("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+            "property float nx\nproperty float ny\nproperty float nz\nproperty uchar red\nproperty uchar green\n"
+            "property uchar blue\nend_header\n")
+    rows = ["0 0 1 0 0 -1 255 0 0", "nan nan nan nan nan nan 0 0 0", "inf inf inf 0 0 1 0 0 0",
+            "0.5 0.25 1.5 0 1 0 0 128 255"]
+    (tmp_path / "pcl.ply").write_text(head + "\n".join(rows) + "\n")
+    c = read_cloud(tmp_path / "pcl.ply")
+    assert np.array_equal(c.points, [[0, 0, 1], [0.5, 0.25, 1.5]])
+    assert np.array_equal(c.normals, [[0, 0, -1], [0, 1, 0]])
+    assert np.allclose(c.colors, [[1, 0, 0], [0, 128 / 255, 1]], atol=1e-9)
+    (tmp_path / "word.ply").write_text(head + "\n".join(rows[:3] + ["0 abc 1 0 0 1 0 0 0"]) + "\n")
+    with pytest.raises(InputError, match=r"word\.ply: vertex list holds a value that is not a number"):
+        read_cloud(tmp_path / "word.ply")
+
+
 def test_every_stanford_range_scan_reads():
     """The Cyberware PLYs (obj_info lines, a range_grid element) that open3d's reader refuses: all 15 read, with
     the vertex count their headers declare and coordinates of a 20 cm dragon in metres."""

@@ -157,9 +157,10 @@ def _open3d_reads_ply(path: Path) -> bool:
     return not any(ln.startswith(b"obj_info") for ln in lines) and names <= {"vertex", "face"}
 
 
-def _ascii_ply_vertices(path: Path) -> np.ndarray | None:
-    """(N, 3) float64 x, y, z of an ASCII PLY whose first element is ``vertex`` with scalar properties (the
-    Cyberware scans: a vertex list followed by a range grid), read with numpy; None for any other layout."""
+def _ascii_ply_vertices(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None] | None:
+    """(points (N, 3), normals (N, 3) or None, colours (N, 3) in [0, 1] or None), float64, of an ASCII PLY whose
+    first element is ``vertex`` with scalar properties (point clouds; the Cyberware scans: a vertex list followed
+    by a range grid), read with numpy; ``nan`` and ``inf`` read as such. None for any other layout."""
     with open(path, "rb") as f:
         header = []
         for line in f:
@@ -182,10 +183,22 @@ def _ascii_ply_vertices(path: Path) -> np.ndarray | None:
             return None
         n = int(elements[0][2])
         rows = b"".join(f.readline() for _ in range(n))
-    a = np.array(rows.split(), dtype=np.float64)
+    try:
+        a = np.array(rows.split(), dtype=np.float64)
+    except ValueError as e:  # a token that is not a number
+        raise InputError(f"vertex list holds a value that is not a number ({e})", path) from None
     if a.size != n * len(props):
         raise InputError(f"vertex list holds {a.size} numbers, expected {n} x {len(props)}", path)
-    return a.reshape(n, len(props))[:, [names.index(c) for c in (b"x", b"y", b"z")]]
+    a = a.reshape(n, len(props))
+
+    def columns(*want: bytes) -> np.ndarray | None:
+        return a[:, [names.index(c) for c in want]] if all(c in names for c in want) else None
+
+    nrm = columns(b"nx", b"ny", b"nz")
+    col = columns(b"red", b"green", b"blue")
+    if col is not None and props[names.index(b"red")][1] not in (b"float", b"float32", b"double", b"float64"):
+        col = col / 255.0  # integer colours are 0-255
+    return columns(b"x", b"y", b"z"), nrm, col
 
 
 def _ply_with_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
@@ -195,7 +208,7 @@ def _ply_with_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.nda
 
     rows = _ascii_ply_vertices(path)
     if rows is not None:  # trimesh's ASCII parser takes 0.4 s on a 40k-point scan, numpy 0.03 s
-        return rows, None, None
+        return rows
     try:
         geom = trimesh.load(str(path), process=False)
     except Exception as e:  # trimesh raises many types for unreadable files; report it as the file's problem
@@ -249,9 +262,10 @@ def read_cloud(path, keep_invalid: bool = False) -> CloudData:
             check_ply_complete(path)
         elif suffix == ".pcd":
             check_pcd_complete(path)
-        if suffix == ".ply" and not _open3d_reads_ply(path):
+        if suffix == ".ply" and (not _open3d_reads_ply(path) or _ply_layout(_ply_head(path)[0])[0] == b"ascii"):
             # open3d's reader refuses valid PLY headers it does not know (Cyberware range scans carry obj_info
-            # lines and a range_grid element); trimesh reads any PLY
+            # lines and a range_grid element), and in an ASCII PLY it stops at an `inf` and returns the rest of the
+            # points undefined; trimesh reads any PLY, and `inf` and `nan` as numbers (dropped below)
             pts, nrm, col = _ply_with_trimesh(path)
         else:
             pc = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
