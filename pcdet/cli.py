@@ -290,8 +290,12 @@ def odometry(recording: Path = typer.Argument(..., help="Recording folder: BOP, 
              method: Optional[str] = typer.Option(None, help="icp (point-to-plane ICP against a local map of "
                                                   "keyframes; the default), kiss (KISS-ICP) or kiss+icp (KISS-ICP's "
                                                   "pose corrected by that ICP)."),
+             config: Optional[Path] = typer.Option(None, help="TOML file with an [odometry] table of settings "
+                                                   "(OdometryConfig; a run's odometry.toml reads back as it is); "
+                                                   "--method overrides its method."),
              ):
     """Estimate the camera trajectory of a recording (T_world_cam per frame, the first camera as the world)."""
+    from .config import load_odometry_config
     from .datasets import open_recording
     from .errors import InputError
     from .odometry import OdometryConfig
@@ -299,7 +303,8 @@ def odometry(recording: Path = typer.Argument(..., help="Recording folder: BOP, 
 
     if method not in (None, "kiss", "icp", "kiss+icp"):
         fail(f"--method takes kiss, icp or kiss+icp, got {method!r}")
-    cfg = OdometryConfig() if method is None else OdometryConfig(method=method)
+    cfg = load_odometry_config(config) if config is not None else OdometryConfig()
+    cfg = cfg if method is None else dataclasses.replace(cfg, method=method)
     rec = open_recording(recording, format)
     if len(rec) == 0:
         fail(f"{recording}: no frames")

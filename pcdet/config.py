@@ -26,6 +26,7 @@ from .grouping import GroupingConfig
 from .keypoints import KeypointConfig
 from .matching import MatchingConfig
 from .model_views import ModelConfig
+from .odometry import OdometryConfig
 from .params import param
 from .preprocess import PreprocessConfig
 from .refine import RefineConfig
@@ -211,3 +212,21 @@ def toml_value(v) -> str:
     if isinstance(v, str):
         return f'"{v}"'
     return repr(v)
+
+
+def load_odometry_config(path: str | Path) -> OdometryConfig:
+    """``OdometryConfig`` from a TOML file's ``[odometry]`` table (the layout `pcdet odometry` writes as
+    ``odometry.toml``, so a run's resolved settings can be given back); fields it leaves out keep their
+    defaults. ``InputError`` / ``ConfigError`` name the file on a missing file, bad TOML, an unknown field or a
+    bad value."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError("odometry settings file not found", p)
+    try:
+        data = tomllib.loads(p.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise InputError(f"not valid TOML ({e})", p) from None
+    unknown = sorted(k for k in data if k != "odometry")
+    if unknown or not isinstance(data.get("odometry", {}), dict):
+        raise ConfigError(f"expected one [odometry] table, got {unknown or ['odometry = ...']}", str(p))
+    return _from_table(OdometryConfig, data.get("odometry", {}), str(p), "odometry")

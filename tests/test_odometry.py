@@ -320,3 +320,50 @@ def test_odometry_refuses_a_recovery_threshold_outside_zero_to_one():
     for bad in (-0.1, 1.5):
         with pytest.raises(ConfigError, match="recover_below must lie in \\[0, 1\\]"):
             OdometryConfig(recover_below=bad)
+
+
+def test_odometry_command_reads_its_settings_back_from_a_toml_file(tmp_path):
+    """`pcdet odometry --config FILE`: a run's own odometry.toml given back gives the same trajectory, bit for bit;
+    a file that changes a setting (plain frame-to-frame ICP) gives another; `--method` overrides the file's; an
+    unknown field, a bad value, bad TOML and a missing file are each one error line naming the file."""
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from pcdet.cli import app
+
+    from .conftest import shared
+
+    src, rec = shared("sevenscenes"), tmp_path / "seq"
+    rec.mkdir()
+    shutil.copy(src / "camera-intrinsics.txt", rec)
+    for i in range(20):
+        shutil.copy(src / f"frame-{i:06d}.depth.png", rec)
+
+    def run(out, *extra):
+        res = CliRunner().invoke(app, ["odometry", str(rec), "--out", str(tmp_path / out), *extra])
+        return res, (tmp_path / out / "trajectory.txt").read_bytes() if res.exit_code == 0 else None
+
+    first, traj = run("a")
+    assert first.exit_code == 0, first.output
+    again, traj_again = run("b", "--config", str(tmp_path / "a" / "odometry.toml"))
+    assert again.exit_code == 0, again.output
+    assert traj_again == traj
+    (tmp_path / "f2f.toml").write_text("[odometry]\nkeyframes = 1\nkeyframe_distance = 0.0\nkeyframe_angle_deg = 0\n")
+    f2f, traj_f2f = run("c", "--config", str(tmp_path / "f2f.toml"))
+    assert f2f.exit_code == 0, f2f.output
+    assert traj_f2f != traj and "keyframes = 1" in (tmp_path / "c" / "odometry.toml").read_text()
+    kiss, _ = run("d", "--config", str(tmp_path / "f2f.toml"), "--method", "kiss")
+    assert kiss.exit_code == 0 and 'method = "kiss"' in (tmp_path / "d" / "odometry.toml").read_text()
+    for name, text, problem in (("unknown.toml", "[odometry]\nkeyframe = 3\n", "unknown field(s) ['keyframe']"),
+                                ("value.toml", "[odometry]\nrecover_below = 2.0\n", "recover_below must lie in"),
+                                ("type.toml", '[odometry]\nkeyframes = "ten"\n', "expected an integer"),
+                                ("table.toml", "[detect]\nx = 1\n", "expected one [odometry] table"),
+                                ("broken.toml", "[odometry\n", "not valid TOML")):
+        (tmp_path / name).write_text(text)
+        res, _ = run("e", "--config", str(tmp_path / name))
+        out = " ".join(res.output.split())
+        assert res.exit_code != 0 and out.startswith("error:") and name in out and problem in out, res.output
+        assert "Traceback" not in res.output
+    res, _ = run("e", "--config", str(tmp_path / "missing.toml"))
+    assert res.exit_code != 0 and "missing.toml" in res.output and "not found" in res.output
