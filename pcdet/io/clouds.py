@@ -265,7 +265,8 @@ def read_cloud(path, keep_invalid: bool = False) -> CloudData:
         if suffix == ".ply" and (not _open3d_reads_ply(path) or _ply_layout(_ply_head(path)[0])[0] == b"ascii"):
             # open3d's reader refuses valid PLY headers it does not know (Cyberware range scans carry obj_info
             # lines and a range_grid element), and in an ASCII PLY it stops at an `inf` and returns the rest of the
-            # points undefined; trimesh reads any PLY, and `inf` and `nan` as numbers (dropped below)
+            # points undefined; `_ply_with_trimesh` reads any PLY (an ASCII vertex list with numpy, `inf` and `nan`
+            # as numbers, dropped below)
             pts, nrm, col = _ply_with_trimesh(path)
         else:
             pc = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
