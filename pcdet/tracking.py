@@ -33,6 +33,7 @@ from .frame import Frame
 from .errors import InputError
 from .io.atomic import atomic_write_bytes, atomic_write_text
 from .odometry import Odometry, OdometryConfig
+from .odometry_run import relocalise
 
 
 @dataclass(frozen=True)
@@ -111,7 +112,7 @@ class Tracker:
     def __init__(self, detector: Detector, config: TrackingConfig | None = None):
         self.det = detector
         self.cfg = config or TrackingConfig()
-        self.odo = Odometry(self.cfg.odometry)
+        self.odo = Odometry(self.cfg.odometry, relocalise)  # a frame that fits its map badly: as `pcdet odometry`
         self.tracks: list[Track] = []
         self.index = -1
         self.last_detections: list[Detection] = []
