@@ -87,3 +87,15 @@ def test_a_doubtful_scan_alignment_is_tried_again_with_three_candidates():
     err = X @ (r.T_target_source[:3, :3] - T_true[:3, :3]).T + (r.T_target_source[:3, 3] - T_true[:3, 3])
     assert np.sqrt(np.mean(np.sum(err ** 2, axis=1))) < 0.002
     assert "retry" in r.timing_s and max(r.fitness, r.coverage) > 0.5
+
+
+def test_two_scans_of_a_flat_wall_register_onto_its_plane_without_a_crash():
+    """A flat scan (every FPFH alike, so no two correspondences agree and RANSAC has no seed edge; it raised an
+    IndexError before) against the same wall moved 1 cm along itself: the pose is ambiguous within the plane,
+    but the source lands on the target's plane (every moved point within 1 mm of z = 2 m)."""
+    from pcdet.align import transform
+
+    g = np.random.default_rng(0).random((5000, 2))
+    wall = np.c_[g, np.full(len(g), 2.0)]
+    r = register(wall, wall + [0.01, 0.0, 0.0], units="m")
+    assert np.abs(transform(r.T_target_source, wall)[:, 2] - 2.0).max() < 1e-3

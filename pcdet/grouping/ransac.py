@@ -257,6 +257,8 @@ def _seed_edges(g: _Graph, clabel: np.ndarray) -> dict:
     one cluster (``scene_pairs`` pairs keypoints within a cluster), so a round drawing seed edges in one cluster
     scans only these instead of the whole graph."""
     e = np.flatnonzero(g.src < g.nbr)
+    if not len(e):  # no two correspondences agree (a flat scan: every FPFH alike)
+        return {}
     lab = clabel[g.src[e]]
     order = np.argsort(lab, kind="stable")  # by cluster, ascending within each
     e, lab = e[order], lab[order]
