@@ -86,6 +86,8 @@ def icp_many(sources: list[np.ndarray], target: np.ndarray, target_normals: np.n
     own: the same on any number). For the many short ICPs of a frame's hypotheses, whose time went to a few
     dozen small array steps per iteration and problem."""
     B = len(sources)
+    if B == 0:
+        return []
     nrm = list(source_normals) if source_normals is not None else [None] * B
     wts = list(weights) if weights is not None else [None] * B
     tree = target_tree if target_tree is not None else cKDTree(target)
@@ -163,7 +165,7 @@ def _pairs_many(sources, source_normals, target, target_normals, tree, T, *, whi
     r = ((p - q) * n).sum(axis=1)
     u = r / cfg.kernel
     w = np.where(np.abs(u) < 1, (1 - u ** 2) ** 2, 0.0)
-    ends = np.cumsum(n_src)
+    ends = np.cumsum(n_src, dtype=np.int64)
     kept = np.r_[0, np.cumsum(ok)][np.r_[0, ends]]  # matched points before each problem's first
     spans = [(int(kept[i]), int(kept[i + 1])) for i in range(len(which))]
     for (a, e), wb, o in zip(spans, ws, np.split(ok, ends[:-1])):

@@ -130,6 +130,18 @@ def test_empty_scene_gives_no_detection(library):
     assert res.detections == []
 
 
+@pytest.mark.parametrize("targets", [None, {1: 1}])
+def test_a_frame_of_pure_depth_noise_gives_no_detection(library, targets):
+    """Depth drawn uniformly from 1.0-1.3 m in every pixel (no surface, as a sensor facing glare or fog might
+    give): grouping finds no raw pose to refine, and the frame gives no detection (before, ICP of an empty batch
+    of poses raised an IndexError)."""
+    from pcdet.synth import KINECT
+
+    rng = np.random.default_rng(0)
+    depth = (1.0 + 0.3 * rng.random((KINECT.height, KINECT.width))).astype(np.float32)
+    assert Detector(library).detect(Frame(depth, KINECT), targets).detections == []
+
+
 def test_same_result_on_one_or_two_threads(synth_small, library):
     ds = BopDataset(synth_small)
     f = ds.frame(ds.images[1])
