@@ -20,3 +20,18 @@ class ConfigError(InputError):
 
 class DependencyError(RuntimeError):
     """An optional dependency that a chosen feature needs is not installed (the message says how to get it)."""
+
+
+def internal_error(e: BaseException) -> str:
+    """One line for an unexpected exception met while processing one frame of a batch (a bug, not bad input):
+    its type, where in pcdet it was raised and its message, so the frame can be reported and the batch go on.
+    ``internal error (please report it): IndexError at pcdet/refine.py:169 in _pairs_many: ...``"""
+    import traceback
+
+    frames = traceback.extract_tb(e.__traceback__)
+    ours = [f for f in frames if "/pcdet/" in f.filename.replace("\\", "/")] or frames
+    where = ""
+    if ours:
+        f = ours[-1]
+        where = f" at pcdet/{f.filename.replace(chr(92), '/').rsplit('/pcdet/', 1)[-1]}:{f.lineno} in {f.name}"
+    return f"internal error (please report it): {type(e).__name__}{where}: {e}"

@@ -19,7 +19,7 @@ import numpy as np
 
 from .config import toml_value
 from .datasets.base import FrameRef
-from .errors import InputError
+from .errors import InputError, internal_error
 from .io.atomic import atomic_write_text
 from .io.models import UnitsWarning
 from .io.trajectory import write_tum
@@ -79,7 +79,14 @@ def run_odometry(rec, cfg: OdometryConfig | None = None, *,
                 on_frame(ref, str(e))
             continue
         t0 = time.perf_counter()
-        out.poses[ref] = odo.step(frame)
+        try:
+            out.poses[ref] = odo.step(frame)
+        except Exception as e:  # a bug met on this frame: reported, and odometry predicts across it
+            odo.skip()
+            out.failed.append((ref, internal_error(e)))
+            if on_frame:
+                on_frame(*out.failed[-1])
+            continue
         out.seconds.append(time.perf_counter() - t0)
         if on_frame:
             on_frame(ref, None)

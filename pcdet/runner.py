@@ -23,7 +23,7 @@ from typing import Callable, Iterator
 from .config import PipelineConfig, dump_toml
 from .datasets.base import FrameRef
 from .detector import DetectionResult, Detector
-from .errors import InputError
+from .errors import InputError, internal_error
 from .executors import map_unordered
 from .io.atomic import atomic_write_text
 from .io.bop import results_row, write_results_csv
@@ -164,6 +164,8 @@ def _detect_one(rec, ref: FrameRef, targets: bool, det: Detector
         return ref, det.detect(frame, tg), None
     except (ValueError, OSError) as e:  # InputError, FileNotFoundError, corrupt images: skip this frame
         return ref, None, str(e)
+    except Exception as e:  # a bug met on this frame: reported with where it was raised, and the batch goes on
+        return ref, None, internal_error(e)
 
 
 def _worker_setup(shared):

@@ -109,3 +109,29 @@ def test_tracking_scenes_spread_over_processes_and_ray_match_one_process(library
         for sid in runs[0]:
             assert json.dumps(other[sid].to_dict()) == json.dumps(runs[0][sid].to_dict())
     assert all(len(r.tracks) >= 1 for r in runs[0].values())
+
+
+def test_a_frame_that_meets_a_bug_is_reported_and_the_run_goes_on(recording, library, tmp_path, monkeypatch):
+    """An unexpected exception while detecting in one frame (here a stage made to raise IndexError on the third
+    frame, as ICP of an empty batch of poses once did) is not bad input, but the batch still goes on: the other
+    5 frames are written, and failures.json names the frame with an 'internal error' line that gives the type,
+    the place in pcdet and the message."""
+    from pcdet import detector as det_module
+    from pcdet.config import PipelineConfig
+
+    real, calls = det_module.Detector.detect, []
+
+    def detect(self, frame, *a, **k):
+        calls.append(1)
+        if len(calls) == 3:
+            raise IndexError("made to fail")
+        return real(self, frame, *a, **k)
+
+    monkeypatch.setattr(det_module.Detector, "detect", detect)
+    out = tmp_path / "out"
+    s = run_recording(open_recording(recording), library, PipelineConfig(), out)
+    assert s.images == 5 and len(list((out / "frames").glob("*.json"))) == 5
+    failures = json.loads((out / "failures.json").read_text())
+    assert len(failures) == 1, failures
+    assert failures[0]["error"].startswith("internal error (please report it): IndexError at pcdet/")
+    assert "tests/test_runner.py" not in failures[0]["error"] and failures[0]["error"].endswith(": made to fail")
