@@ -28,10 +28,11 @@ def internal_error(e: BaseException) -> str:
     ``internal error (please report it): IndexError at pcdet/refine.py:169 in _pairs_many: ...``"""
     import traceback
 
-    frames = traceback.extract_tb(e.__traceback__)
-    ours = [f for f in frames if "/pcdet/" in f.filename.replace("\\", "/")] or frames
+    frames = [(f.filename.replace("\\", "/"), f.lineno, f.name) for f in traceback.extract_tb(e.__traceback__)]
+    ours = [f for f in frames if "/pcdet/" in f[0]] or frames
     where = ""
     if ours:
-        f = ours[-1]
-        where = f" at pcdet/{f.filename.replace(chr(92), '/').rsplit('/pcdet/', 1)[-1]}:{f.lineno} in {f.name}"
+        path, line, name = ours[-1]
+        shown = f"pcdet/{path.rsplit('/pcdet/', 1)[-1]}" if "/pcdet/" in path else path
+        where = f" at {shown}:{line} in {name}"
     return f"internal error (please report it): {type(e).__name__}{where}: {e}"

@@ -116,7 +116,7 @@ class _Placer:
             T = []
             # a model with no volume (flat, or one triangle) has no stable pose to compute: qhull cannot hull it,
             # and trimesh's analysis of a zero-thickness box never ends
-            if len(sv) == 3 and sv[2] > 1e-6 * sv[0]:
+            if sv[2] > 1e-6 * sv[0]:
                 T, p = trimesh.Trimesh(*self.meshes[i], process=True).compute_stable_poses(n_samples=1,
                                                                                            threshold=0.02)
             if len(T) == 0:
@@ -129,8 +129,7 @@ def _lying_flat(vertices: np.ndarray) -> np.ndarray:
     """(4, 4) rotation that turns the direction in which ``vertices`` (N, 3) are thinnest (their least principal
     axis) to +z, so that a model with no stable pose to compute (a flat one) lies on its face."""
     c = vertices - vertices.mean(axis=0)
-    axes = np.linalg.svd(c, full_matrices=True)[2] if len(c) >= 3 else np.eye(3)
-    R = axes[[0, 1, 2]]  # rows: most to least spread; the last becomes z
+    R = np.linalg.svd(c)[2] if len(c) >= 3 else np.eye(3)  # rows: most to least spread; the last becomes z
     if np.linalg.det(R) < 0:
         R[1] = -R[1]
     T = np.eye(4)
