@@ -148,6 +148,14 @@ def _merge(a: dict, b: dict) -> dict:
     return out
 
 
+def _read_toml(p: Path) -> dict:
+    """A TOML file's tables; ``InputError`` naming the file when it is not valid TOML (or not UTF-8)."""
+    try:
+        return tomllib.loads(p.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise InputError(f"not valid TOML ({e})", p) from None
+
+
 def load_pipeline(name_or_path: str | Path | None = None) -> PipelineConfig:
     """A preset by name (``pipelines/<name>.toml``) or a TOML file path; ``None`` gives the defaults. Presets
     joined by ``+`` are layered left to right, field by field: ``"crowded+hough"`` is the crowded preset with
@@ -159,10 +167,7 @@ def load_pipeline(name_or_path: str | Path | None = None) -> PipelineConfig:
     data: dict = {}
     for part in parts:
         p = _preset_path(part)
-        try:
-            layer = tomllib.loads(p.read_text())
-        except tomllib.TOMLDecodeError as e:
-            raise InputError(f"not valid TOML ({e})", p) from None
+        layer = _read_toml(p)
         PipelineConfig.from_dict(layer, source=str(p))  # each layer must be valid on its own
         data = _merge(data, layer)
     return PipelineConfig.from_dict(data, source=str(name_or_path))
@@ -222,10 +227,7 @@ def load_odometry_config(path: str | Path) -> OdometryConfig:
     p = Path(path)
     if not p.is_file():
         raise InputError("odometry settings file not found", p)
-    try:
-        data = tomllib.loads(p.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise InputError(f"not valid TOML ({e})", p) from None
+    data = _read_toml(p)
     unknown = sorted(k for k in data if k != "odometry")
     if unknown or not isinstance(data.get("odometry", {}), dict):
         raise ConfigError(f"expected one [odometry] table, got {unknown or ['odometry = ...']}", str(p))

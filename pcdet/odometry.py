@@ -182,19 +182,17 @@ class _KeyframeICP:
             coarse = RefineConfig(iterations=20, max_distance=2 * level * v, kernel=level / 2 * v)
             T = icp(s, mp, mn, T, coarse, target_tree=tree, weights=_depth_weights(s, cfg.depth_weight_power),
                     tolerance=(1e-4, 1e-5)).T_target_source
-        starts = [T]
-        if self.relocalise is not None:  # called only if the coarse-to-fine pose fits badly too
-            starts.append(lambda: self.relocalise(pts, mp))
-        for start in starts:
-            if best_fit >= cfg.recover_below:
-                break
-            start = start() if callable(start) else start
-            if start is None:
-                continue
-            T = icp(src, mp, mn, start, rc, target_tree=tree, weights=w, tolerance=STOP).T_target_source
-            fit = self._fit(src, w, T, v)
-            if fit > best_fit:
-                best, best_fit = T, fit
+        T = icp(src, mp, mn, T, rc, target_tree=tree, weights=w, tolerance=STOP).T_target_source
+        fit = self._fit(src, w, T, v)
+        if fit > best_fit:
+            best, best_fit = T, fit
+        if best_fit < cfg.recover_below and self.relocalise is not None:
+            start = self.relocalise(pts, mp)
+            if start is not None:
+                T = icp(src, mp, mn, start, rc, target_tree=tree, weights=w, tolerance=STOP).T_target_source
+                fit = self._fit(src, w, T, v)
+                if fit > best_fit:
+                    best, best_fit = T, fit
         self.recovered += best is not first
         return best
 

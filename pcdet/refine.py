@@ -165,7 +165,7 @@ def _pairs_many(sources, source_normals, target, target_normals, tree, T, *, whi
     r = ((p - q) * n).sum(axis=1)
     u = r / cfg.kernel
     w = np.where(np.abs(u) < 1, (1 - u ** 2) ** 2, 0.0)
-    ends = np.cumsum(n_src, dtype=np.int64)
+    ends = np.cumsum(n_src)
     kept = np.r_[0, np.cumsum(ok)][np.r_[0, ends]]  # matched points before each problem's first
     spans = [(int(kept[i]), int(kept[i + 1])) for i in range(len(which))]
     for (a, e), wb, o in zip(spans, ws, np.split(ok, ends[:-1])):

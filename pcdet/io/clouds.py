@@ -150,11 +150,13 @@ def check_ply_complete(path) -> None:
 
 
 def _open3d_reads_ply(path: Path) -> bool:
-    """Whether the PLY header is one open3d's reader takes (no obj_info lines, only vertex and face elements);
-    ``InputError`` when the file is not PLY at all."""
+    """Whether open3d's reader is to read the PLY: binary (in an ASCII file it stops at an ``inf`` and returns the
+    rest of the points undefined), no obj_info lines, only vertex and face elements (it refuses others, such as a
+    Cyberware scan's range_grid); ``InputError`` when the file is not PLY at all."""
     lines = _ply_head(path)[0]
-    names = {name for name, _, _, _ in _ply_layout(lines)[1]}
-    return not any(ln.startswith(b"obj_info") for ln in lines) and names <= {"vertex", "face"}
+    fmt, elements = _ply_layout(lines)
+    names = {name for name, _, _, _ in elements}
+    return fmt != b"ascii" and not any(ln.startswith(b"obj_info") for ln in lines) and names <= {"vertex", "face"}
 
 
 def _ascii_ply_vertices(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None] | None:
@@ -262,11 +264,9 @@ def read_cloud(path, keep_invalid: bool = False) -> CloudData:
             check_ply_complete(path)
         elif suffix == ".pcd":
             check_pcd_complete(path)
-        if suffix == ".ply" and (not _open3d_reads_ply(path) or _ply_layout(_ply_head(path)[0])[0] == b"ascii"):
-            # open3d's reader refuses valid PLY headers it does not know (Cyberware range scans carry obj_info
-            # lines and a range_grid element), and in an ASCII PLY it stops at an `inf` and returns the rest of the
-            # points undefined; `_ply_with_trimesh` reads any PLY (an ASCII vertex list with numpy, `inf` and `nan`
-            # as numbers, dropped below)
+        if suffix == ".ply" and not _open3d_reads_ply(path):
+            # `_ply_with_trimesh` reads any PLY (an ASCII vertex list with numpy, `inf` and `nan` as numbers,
+            # dropped below)
             pts, nrm, col = _ply_with_trimesh(path)
         else:
             pc = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
