@@ -65,7 +65,11 @@ class OdometryConfig:
     ICP leaves less than this share of its weighted samples within one grid spacing of the map's surface is
     registered again, coarse to fine and then (where ``Odometry`` has a ``relocalise``) with no guess, and keeps
     the pose that fits best (0: never). On the 300 7-Scenes frames that share is 0.90 at the least (median 0.99);
-    where the camera was lost at every 10th and 12th frame, 0.25-0.54.
+    where the camera was lost at every 10th and 12th frame, 0.25-0.54. keyframe_below: a frame whose share
+    (after any recovery) is below this also becomes a keyframe, so that a camera moving into ground the map has
+    not seen extends the map before that share falls under ``recover_below`` (0: by distance and angle alone).
+    Run backwards, the 7-Scenes clip turns towards new ground: there the share falls smoothly to 0.71 between
+    keyframes made by distance and angle, and the recovery ran in vain on 16 frames (1.8 times slower).
 
     Measured with ``python scripts/bench_odometry.py`` (7-Scenes, 300 real Kinect frames): the map of 10
     keyframes brings frame-to-frame ICP's ATE from 27.3 to 20.9 mm (49.7 to 29.4 mm without the depth weights and
@@ -85,11 +89,13 @@ class OdometryConfig:
     depth_weight_power: float = 4.0
     icp_kernel: float = 1.0
     recover_below: float = 0.8
+    keyframe_below: float = 0.85
 
     def __post_init__(self):
         check_positive(self, "icp_kernel")
-        if not 0 <= self.recover_below <= 1:
-            raise ConfigError(f"OdometryConfig.recover_below must lie in [0, 1], got {self.recover_below}")
+        for name in ("recover_below", "keyframe_below"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ConfigError(f"OdometryConfig.{name} must lie in [0, 1], got {getattr(self, name)}")
         if self.depth_weight_power < 0:
             raise ConfigError(f"OdometryConfig.depth_weight_power must be >= 0, got {self.depth_weight_power}")
         if self.method not in ("kiss", "icp", "kiss+icp"):
@@ -142,10 +148,12 @@ class _KeyframeICP:
         w = _depth_weights(src, cfg.depth_weight_power)
         T_world_cur = icp(src, mp, mn, T_world_guess, rc, target_tree=tree, weights=w,
                           tolerance=STOP).T_target_source
-        if cfg.recover_below > 0 and len(src):
-            T_world_cur = self._recover(pts, src, w, (T_world_guess, T_world_cur), vox=vox, v=v, rc=rc)
+        checked = (cfg.recover_below > 0 or cfg.keyframe_below > 0) and len(src)
+        fit = self._fit(src, w, T_world_cur, v) if checked else 1.0
+        if fit < cfg.recover_below:
+            T_world_cur, fit = self._recover(pts, src, w, T_world_guess, (T_world_cur, fit), vox=vox, v=v, rc=rc)
         T_key_cur = np.linalg.inv(self.T_world_key) @ T_world_cur
-        if (np.linalg.norm(T_key_cur[:3, 3]) >= cfg.keyframe_distance
+        if (fit < cfg.keyframe_below or np.linalg.norm(T_key_cur[:3, 3]) >= cfg.keyframe_distance
                 or rotation_error_deg(T_key_cur, np.eye(3)) >= cfg.keyframe_angle_deg):
             self._add_key(pts, vox, T_world_cur)
         return T_world_cur
@@ -163,19 +171,17 @@ class _KeyframeICP:
         w = np.ones(len(q)) if w is None else w
         return float(w[on].sum() / max(w.sum(), 1e-300))
 
-    def _recover(self, pts, src, w, guesses: tuple[np.ndarray, np.ndarray], *, vox: float, v: float,
-                 rc: RefineConfig) -> np.ndarray:
-        """The frame's pose (4, 4): ICP's (``guesses[1]``, from ``guesses[0]``) where it fits the map
-        (``_fit`` >= ``recover_below``); otherwise the best fitting of it, ICP from a coarse-to-fine registration
-        from the same guess (``RECOVER_LEVELS``) and, if neither fits, ICP from ``relocalise``'s pose.
-        ``pts``: the frame's points, ``src`` and ``w`` ICP's samples of them and their weights; ``vox``: the
-        frame's sampling step, ``v``: the map's grid spacing (m)."""
+    def _recover(self, pts, src, w, T_guess: np.ndarray, icp_result: tuple[np.ndarray, float], *, vox: float,
+                 v: float, rc: RefineConfig) -> tuple[np.ndarray, float]:
+        """The frame's pose (4, 4) and its ``_fit``, for a frame that ICP from ``T_guess`` left fitting the map
+        badly (``icp_result``: that pose and its fit): the best fitting of ICP's pose, ICP from a coarse-to-fine
+        registration from the same guess (``RECOVER_LEVELS``) and, if neither fits, ICP from ``relocalise``'s
+        pose. ``pts``: the frame's points, ``src`` and ``w`` ICP's samples of them and their weights; ``vox``:
+        the frame's sampling step, ``v``: the map's grid spacing (m)."""
         cfg = self.cfg
         mp, mn, tree, _ = self.map
-        T_guess, first = guesses
-        best, best_fit = first, self._fit(src, w, first, v)
-        if best_fit >= cfg.recover_below:
-            return first
+        first, best_fit = icp_result
+        best = first
         T = T_guess
         for level in RECOVER_LEVELS:
             s, _, _ = voxel_downsample(pts, level * vox, representatives=False)
@@ -194,7 +200,7 @@ class _KeyframeICP:
                 if fit > best_fit:
                     best, best_fit = T, fit
         self.recovered += best is not first
-        return best
+        return best, best_fit
 
     def correct(self, C: np.ndarray) -> None:
         """The world poses so far were off by ``C`` (4, 4, left-multiplied): move the map with them."""

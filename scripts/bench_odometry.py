@@ -7,7 +7,7 @@ Recordings: ../shared/data/sevenscenes (300 real Kinect frames, KinectFusion pos
 (5 frames) and a synthetic table-top recording. Prints ATE (RMS position error after rigid alignment, mm), RPE
 over one frame (RMS, mm and deg) and frames/s of the odometry alone (frames are read beforehand), and each
 method's frames/s as a ratio to pcdet's default.
-Run:  python scripts/bench_odometry.py [--frames 60] [--seed 2026] [--data REC ... [--every N]]
+Run:  python scripts/bench_odometry.py [--frames 60] [--seed 2026] [--data REC ... [--every N] [--backwards]]
 """
 from __future__ import annotations
 
@@ -121,14 +121,16 @@ def kiss_as_shipped(frames):
     return out
 
 
-def table(rec, label, every=1):
+def table(rec, label, every=1, backwards=False):
     """One table per sequence of ``rec`` (a 7-Scenes scene folder or a BOP dataset may hold several), of every
-    ``every``-th frame (faster camera motion)."""
+    ``every``-th frame (faster camera motion), last frame first if ``backwards`` (another path through the same
+    room)."""
     scenes = sorted({r.scene_id for r in rec})
     label += f", every {every}th frame" if every > 1 else ""
+    label += ", played backwards" if backwards else ""
     for sid in scenes:
-        _table(rec, [r for r in rec if r.scene_id == sid][::every],
-               label if len(scenes) == 1 else f"{label}, scene {sid}")
+        refs = [r for r in rec if r.scene_id == sid][::every]
+        _table(rec, refs[::-1] if backwards else refs, label if len(scenes) == 1 else f"{label}, scene {sid}")
 
 
 def _table(rec, refs, label):
@@ -157,6 +159,8 @@ def _table(rec, refs, label):
     row("pcdet icp, keyframe map (default)", est, fps)
     row("pcdet icp without recovery (recover_below = 0)", *timed(lambda: list(odometry(frames, OdometryConfig(
         recover_below=0.0)))))
+    row("pcdet icp, keyframes by distance and angle alone (keyframe_below = 0)", *timed(lambda: list(odometry(
+        frames, OdometryConfig(keyframe_below=0.0)))))
     row("pcdet frame-to-frame ICP", *timed(lambda: list(odometry(frames, OdometryConfig(
         keyframe_distance=0.0, keyframe_angle_deg=0.0, keyframes=1)))))
     row("pcdet kiss (KISS-ICP, 4 cm voxel)", *timed(lambda: list(odometry(frames, OdometryConfig(method="kiss")))))
@@ -174,12 +178,13 @@ def main():
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--data", type=Path, nargs="*", default=None)
     ap.add_argument("--every", type=int, default=1, help="every n-th frame of --data (a faster camera)")
+    ap.add_argument("--backwards", action="store_true", help="play --data from its last frame to its first")
     args = ap.parse_args()
     if args.every < 1:
         ap.error(f"--every must be >= 1, got {args.every}")
     if args.data:
         for d in args.data:
-            table(open_recording(d), str(d), args.every)
+            table(open_recording(d), str(d), args.every, args.backwards)
         return
     for name, label in (("sevenscenes", "7-Scenes (real Kinect, KinectFusion poses)"),
                         ("open3d_rgbd", "open3d_rgbd (ICL-NUIM living room, rendered)")):
