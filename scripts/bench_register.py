@@ -9,7 +9,7 @@ the common frame by R(q)^T X + t). A pair succeeds when the source points' RMS d
 the true alignment is under 2 mm. Both methods get the same points (read beforehand, so file reading is not
 timed) and sample at the same voxel (1/40 of the source's extent).
 
-Run:  python scripts/bench_register.py [--limit N]
+Run:  python scripts/bench_register.py [--limit N] [--gaps 24 48]
 """
 from __future__ import annotations
 
@@ -80,13 +80,14 @@ def rms_displacement(T: np.ndarray, T_true: np.ndarray, pts: np.ndarray) -> floa
     return float(np.sqrt(np.mean(np.sum(d ** 2, axis=1))))
 
 
-def pairs() -> list[tuple[Path, Path, np.ndarray, str]]:
-    """(source, target, true T_target_source, label) for every pair in the benchmark."""
+def pairs(gaps=(24, 48)) -> list[tuple[Path, Path, np.ndarray, str]]:
+    """(source, target, true T_target_source, label) for every pair in the benchmark: the dragon's scans
+    ``gaps`` degrees apart (multiples of 24), then the bunny's."""
     out = []
     d = DATA / "stanford_scans"
     if d.is_dir():
         conf = read_conf(d / "dragonStandRight.conf")
-        for gap in (24, 48):
+        for gap in gaps:
             for a in range(0, 360, 24):
                 b = (a + gap) % 360
                 sa, sb = f"dragonStandRight_{a}.ply", f"dragonStandRight_{b}.ply"
@@ -105,8 +106,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--limit", type=int, default=0, help="Only the first N pairs (0: all).")
     ap.add_argument("--iterations", type=int, default=None, help="pcdet's RANSAC draws (default: RegisterConfig's).")
+    ap.add_argument("--gaps", type=int, nargs="+", default=[24, 48],
+                    help="The dragon's pairs this many degrees apart (multiples of 24; default: 24 48).")
     a = ap.parse_args()
-    todo = pairs()[: a.limit or None]
+    if any(g % 24 or not 0 < g < 360 for g in a.gaps):
+        ap.error(f"--gaps takes multiples of 24 between 24 and 336, got {a.gaps}")
+    todo = pairs(tuple(a.gaps))[: a.limit or None]
     print("| pair | pcdet error (mm) | pcdet s | Open3D error (mm) | Open3D s |")
     print("|---|---|---|---|---|")
     rows = []
