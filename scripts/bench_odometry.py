@@ -5,8 +5,8 @@ is taken at one instant), with the trivial baselines (the camera never moves; th
 
 Recordings: ../shared/data/sevenscenes (300 real Kinect frames, KinectFusion poses), ../shared/data/open3d_rgbd
 (5 frames) and a synthetic table-top recording. Prints ATE (RMS position error after rigid alignment, mm), RPE
-over one frame and over 30 (the drift; RMS, mm and deg) and frames/s of the odometry alone (frames are read beforehand), and each
-method's frames/s as a ratio to pcdet's default.
+over one frame and over 30 (the drift; RMS, mm and deg) and frames/s of the odometry alone (frames are read
+beforehand), and each method's frames/s as a ratio to pcdet's default.
 Run:  python scripts/bench_odometry.py [--frames 60] [--seed 2026] [--data REC ... [--every N] [--backwards]]
 """
 from __future__ import annotations
@@ -127,7 +127,7 @@ def table(rec, label, every=1, backwards=False):
     ``every``-th frame (faster camera motion), last frame first if ``backwards`` (another path through the same
     room)."""
     scenes = sorted({r.scene_id for r in rec})
-    label += f", every {every}th frame" if every > 1 else ""
+    label += f", one frame in {every}" if every > 1 else ""
     label += ", played backwards" if backwards else ""
     for sid in scenes:
         refs = [r for r in rec if r.scene_id == sid][::every]
@@ -146,7 +146,10 @@ def _table(rec, refs, label):
 
     def row(name, est, fps=None):
         tr, rr = rpe(est, gt)
-        drift = "{:.1f} / {:.2f}".format(*np.array(rpe(est, gt, DRIFT)) * [1000, 1]) if len(est) > DRIFT else ""
+        drift = ""
+        if len(est) > DRIFT:
+            dt, dr = rpe(est, gt, DRIFT)
+            drift = f"{dt * 1000:.1f} / {dr:.2f}"
         ratio = f"{fps / base['fps']:.2f}x" if fps and base.get("fps") else ""
         print(f"| {name} | {ate_rmse(est, gt) * 1000:.1f} | {tr * 1000:.1f} | {rr:.2f} | {drift} | "
               f"{'' if fps is None else f'{fps:.1f}'} | {ratio} |", flush=True)
