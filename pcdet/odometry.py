@@ -217,6 +217,7 @@ class _KeyframeICP:
     def _add_key(self, pts: np.ndarray, vox: float, T_world_cam: np.ndarray) -> None:
         p, _, _ = voxel_downsample(pts, vox, representatives=False)
         n = estimate_normals(p, 3 * vox, 30)
+        # not over this frame's median depth as ICP's weights (_depth_weights): a map cell mixes keyframes
         w = np.maximum(p[:, 2], 1e-3) ** -self.cfg.depth_weight_power
         self.keys = (self.keys + [(transform(T_world_cam, p), n @ T_world_cam[:3, :3].T, w)])[-self.cfg.keyframes:]
         self.T_world_key = T_world_cam
