@@ -6,10 +6,11 @@ is taken at one instant) and one thread (its threaded reductions would make the 
 count). Its voxel is 4 cm, its own rule of max range / 100; at 2 cm its scan-to-map search ran at 1 frame/s on
 640 x 480 depth frames, and as it ships (1 m) it does not follow a room-scale depth camera.
 
-Measured with ``python scripts/bench_odometry.py`` on 7-Scenes (300 real Kinect frames, KinectFusion poses):
-ATE 20.9 mm at 15 frames/s for the default (in a slow hour), 27.3 mm for plain frame-to-frame ICP, 41.7 mm at 3
-frames/s for KISS-ICP; Open3D's RGB-D odometry (colour + depth) 24.9 mm at 1.7 frames/s. Weighting each point by
-its depth noise took the default from 29.4 mm and frame-to-frame ICP from 49.7 mm; a Tukey kernel one map grid
+Measured with ``python scripts/bench_odometry.py`` on 7-Scenes (300 real Kinect frames, KinectFusion poses;
+2026-12-06, one run): ATE 20.9 mm at 56.1 frames/s for the default, 27.3 mm for plain frame-to-frame ICP, 41.7
+mm at 4.8 frames/s for KISS-ICP at 4 cm; Open3D's RGB-D odometry (colour + depth) 24.9 mm at 3.3 frames/s. This
+host's speed swings by up to two times between hours (15 frames/s for the default in a slow one). Weighting each
+point by its depth noise took the default from 29.4 mm and frame-to-frame ICP from 49.7 mm; a Tukey kernel one map grid
 spacing wide instead of two took them from 22.1 and 27.9 mm. On table-top views KISS-ICP
 alone drifts, because the table is most of every view and point-to-point ICP slides along it; point-to-plane
 ICP holds. A frame that ICP leaves fitting its map badly is registered again (``OdometryConfig.recover_below``):
