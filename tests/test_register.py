@@ -124,11 +124,11 @@ def test_two_scans_of_a_flat_wall_register_onto_its_plane_without_a_crash():
 @pytest.mark.real
 def test_two_fragments_of_a_room_register_from_any_starting_pose():
     """Room-scale partial scans in metres, sparse (Open3D's two 3DMatch-style fragments, about 5 cm apart, 1.5-2 m
-    across), the source moved by three arbitrary rigid motions (any rotation, about a metre away): each lands
-    within 2 cm RMS and 1 degree of where point-to-plane ICP from their common frame puts it (the fragments'
-    SOURCE.txt: their frame is right to about 3 cm, so ICP's pose is the reference; measured 4.0-7.5 mm and
-    0.18-0.48 degrees). The thresholds lie well under the 6 cm sampling, and a pose found on the wrong wall is
-    metres off."""
+    across), the source moved by three arbitrary rigid motions (any rotation, a shift of about a metre along each
+    axis): each lands within 2 cm RMS and 1 degree of where point-to-plane ICP from their common frame puts it
+    (the fragments' SOURCE.txt: their frame is right to about 3 cm, so ICP's pose is the reference; measured
+    4.0-7.5 mm and 0.18-0.48 degrees). The thresholds lie well under the 6 cm sampling, and a pose found on the
+    wrong wall is metres off."""
     import open3d as o3d
 
     d = shared("open3d_feature")
