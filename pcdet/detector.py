@@ -128,7 +128,7 @@ SURFACE_SAMPLES = 128  # model samples that tell two candidate poses' surfaces a
 
 
 def _spread_per_model(indices: list[int], looks, hyps: list[Hypothesis], poses: dict, models: list[PreparedModel],
-                      limit: int, *, spots: dict[int, int] | None = None) -> list[int]:
+                      limit: int, *, spots: dict[int, int] | None = None, places: int = 0) -> list[int]:
     """Per model, up to ``limit`` of ``indices`` (into ``hyps``, posed at ``poses[j]``), best-looking first
     (``looks[j].score``, ties by index), none within 10 degrees and a fifth of the diameter of a better-looking
     one. The first ``spots[model index]`` (default: all ``limit``) are taken on distinct spots of the scene:
@@ -136,7 +136,10 @@ def _spread_per_model(indices: list[int], looks, hyps: list[Hypothesis], poses: 
     of a tenth of the diameter or more, ``grouping.common.distinct_surfaces``), so that three copies of an
     object, or a box turned every way on one spot, do not take the whole budget; the rest are the
     best-looking left, alternatives on the same spots (when one instance is wanted, a flange turned by one
-    bolt hole is worth refining)."""
+    bolt hole is worth refining). Where those cover fewer than ``places`` places (``_places``), the
+    best-looking of the others at new places are added, beyond ``limit``: in a scene of many objects, another
+    object's surface can look best for a model at every turn (a flat bracket on a box's faces), and its own
+    place must still be refined."""
     out = []
     for mi in sorted({hyps[j].model_index for j in indices}):
         js = sorted((j for j in indices if hyps[j].model_index == mi), key=lambda j: (-looks[j].score, j))
@@ -148,8 +151,35 @@ def _spread_per_model(indices: list[int], looks, hyps: list[Hypothesis], poses: 
         first = distinct_surfaces(T, order, pm.icp_points[::step], pm.model.diameter, n_spots)
         taken = set(first.tolist())
         rest = [i for i in order if i not in taken][:limit - len(first)]
-        out += [js[i] for i in sorted([*taken, *rest])]
+        chosen = sorted([*taken, *rest])  # positions in js: best-looking first
+        if places > 0:
+            centres = T[:, :3, :3] @ pm.icp_points.mean(axis=0) + T[:, :3, 3]
+            inside = set(chosen)
+            chosen += _places(centres, chosen, [i for i in order if i not in inside], 0.5 * pm.model.diameter, places)
+        out += [js[i] for i in sorted(chosen)]
     return out
+
+
+def _places(centres: np.ndarray, chosen: list[int], others: list[int], apart: float, places: int) -> list[int]:
+    """Of ``others`` (indices into ``centres`` (N, 3), m, best first), the first at new places, until ``chosen``
+    and they cover ``places`` places: a place is a centre at least ``apart`` (m) from every place's first centre,
+    counted over ``chosen`` in its order first."""
+    at: list[np.ndarray] = []
+
+    def new(i: int) -> bool:
+        return all(np.sum((centres[i] - a) ** 2) >= apart * apart for a in at)
+
+    for i in chosen:
+        if new(i):
+            at.append(centres[i])
+    added = []
+    for i in others:
+        if len(at) >= places:
+            break
+        if new(i):
+            added.append(i)
+            at.append(centres[i])
+    return added
 
 
 class _Timer:
@@ -564,7 +594,8 @@ class Detector:
                 trace.coarse = coarse
         # the full ICP for the best few per model, on distinct spots first; candidates that converged onto the
         # same pose are one (the best-looking of them)
-        keep = sorted(_spread_per_model(plausible, look, hyps, start, self.models, rc.max_per_model, spots=spots))
+        keep = sorted(_spread_per_model(plausible, look, hyps, start, self.models, rc.max_per_model, spots=spots,
+                                        places=0 if spots is None else rc.places))
         if trace is not None:
             trace.first_look, trace.refined = pre, keep
         hyps_all, hyps = hyps, [hyps[j] for j in keep]

@@ -31,12 +31,16 @@ class RefineConfig:
     coarse_distance: float = param(0.03, "m; correspondence distance of the coarse ICP (then two thirds of it): "
                                          "raw poses 1-3 cm off come within the full ICP's reach")
     coarse_points: int = param(300, "model samples the coarse ICP moves (evenly taken from the ICP samples)")
+    places: int = param(3, "with targets: a model's full ICPs cover at least this many places of the scene (posed "
+                           "centroids half its diameter apart), one more ICP for each place the max_per_model best "
+                           "leave out (0: off)")
 
     def __post_init__(self):
         check_positive(self, "iterations", "max_distance", "kernel", "max_per_model", "coarse_distance",
                        "coarse_points")
-        if self.candidates < 0:
-            raise ConfigError(f"RefineConfig.candidates must be >= 0, got {self.candidates}")
+        for n in ("candidates", "places"):
+            if getattr(self, n) < 0:
+                raise ConfigError(f"RefineConfig.{n} must be >= 0, got {getattr(self, n)}")
 
 
 @dataclass
