@@ -15,8 +15,11 @@ LM-O frame with its 8 objects named): the cost of searching that many given obje
 cat is in view, so precision is not meaningful there (each target keeps its best pose). ``--depth-only``: the
 colour images are dropped (LM-O's test frames are used without colour).
 
+``--save DIR``: only write the two libraries as BOP model folders ``DIR/lib8`` and ``DIR/lib40`` (for ``pcdet
+synth --models DIR/lib8``: synthetic scenes of the same 8 objects).
+
 Run:  python scripts/bench_library.py [--data ../shared/data/linemod_cat] [--frames 20] [--pipeline default]
-                                      [--targets] [--depth-only] [--only 8]
+                                      [--targets] [--depth-only] [--only 8] [--save DIR]
 """
 from __future__ import annotations
 
@@ -109,7 +112,15 @@ def main():
     ap.add_argument("--targets", action="store_true", help="give every library model as a target (one each)")
     ap.add_argument("--depth-only", action="store_true", help="drop the colour images")
     ap.add_argument("--only", type=int, choices=(8, 40), default=None, help="run one library only")
+    ap.add_argument("--save", type=Path, default=None, help="only write DIR/lib8 and DIR/lib40, then stop")
     args = ap.parse_args()
+    if args.save is not None:
+        if args.save.exists() and any(args.save.iterdir()):
+            ap.error(f"--save {args.save}: the folder is not empty")
+        args.save.mkdir(parents=True, exist_ok=True)
+        for lib in build_libraries(args.data, args.save):
+            print(f"written: {lib}")
+        return
     rec = open_recording(args.data)
     refs = list(rec)
     refs = refs[: args.frames] if args.frames > 0 else refs
