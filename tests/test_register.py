@@ -69,7 +69,6 @@ def test_dragon_scan_to_scan_within_2mm(a, b):
     assert max(r.fitness, r.coverage) > 0.5 and min(r.fitness, r.coverage) > 0.4
 
 
-@pytest.mark.real
 def _dragon_24_to_72(monkeypatch, wide_reach: float | None = None):
     """``register`` of the dragon's scans 24 and 72 degrees, at the voxel bench_register.py uses (1/40 of the
     source's diameter), with ``register.WIDE_REACH`` set unless None; the result and its RMS error (m) against the
@@ -91,6 +90,7 @@ def _dragon_24_to_72(monkeypatch, wide_reach: float | None = None):
     return r, float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
 
 
+@pytest.mark.real
 def test_a_doubtful_scan_alignment_is_tried_again_with_three_candidates(monkeypatch):
     """Dragon scans 24 and 72 degrees apart, without the wide short ICPs (``WIDE_REACH`` 0): one FPFH candidate per
     keypoint gives no hypothesis near the truth, and the result (40 mm off) has both shares under one half. Such a
@@ -101,6 +101,7 @@ def test_a_doubtful_scan_alignment_is_tried_again_with_three_candidates(monkeypa
     assert "retry" in r.timing_s and max(r.fitness, r.coverage) > 0.5
 
 
+@pytest.mark.real
 def test_a_hypothesis_three_voxels_off_is_reached_by_the_wide_short_icp(monkeypatch):
     """The same pair with the wide short ICPs (the default, reaching 6 voxels, 31 mm here): the best hypothesis of
     the one-candidate pass lies 41 mm off, and its wide ICP brings it within reach of the usual one, so the pair
