@@ -410,18 +410,24 @@ class Detector:
         its poses that lost its pixels so (the step block kept elsewhere at 0.75 where its true pose scored 0.88),
         and selection is global, the walk is redone with the set that best explains the scene
         (``_select_global``) first, so that the object explaining the spot keeps it and the other takes its next
-        pose elsewhere, if any. Returns the kept candidates, best score first."""
+        pose elsewhere, if any. That set is cut to the targets' counts first, best score first: a pose of an object
+        beyond its count (a second step block where the bracket stands, scoring 0.41) would be dropped by the count
+        after taking the pixels of the pose that explains its spot (the bracket's, 0.71). Returns the kept
+        candidates, best score first."""
         v = self.config.verify
         supports = [x.support for x in vers]
         obj = [self.library[h.model_index].obj_id for h in hyps]
 
-        def take(walk: list[int]) -> list[int]:
-            left, chosen = dict(targets), []
-            for j in resolve_conflicts(walk, supports, v.conflict_overlap, frame.depth.size):
+        def counted(walk: list[int]) -> list[int]:  # each object's first targets[obj_id]
+            left, kept = dict(targets), []
+            for j in walk:
                 if left.get(obj[j], 0) > 0:
-                    chosen.append(j)
+                    kept.append(j)
                     left[obj[j]] -= 1
-            return chosen
+            return kept
+
+        def take(walk: list[int]) -> list[int]:
+            return counted(resolve_conflicts(walk, supports, v.conflict_overlap, frame.depth.size))
 
         chosen = take(order)
         has = {o: sum(obj[j] == o for j in order) for o in targets}
@@ -436,7 +442,7 @@ class Detector:
         if v.selection != "global" or (all(got[o] >= min(n, has[o]) for o, n in targets.items())
                                        and not passed_over):
             return chosen
-        first = self._select_global(scene, order, hyps, regs, vers, trace)
+        first = counted(self._select_global(scene, order, hyps, regs, vers, trace))
         taken = set(first)
         return sorted(take(first + [j for j in order if j not in taken]), key=rank.get)  # best score first
 
