@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
+from collections import Counter
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -180,6 +181,29 @@ def _places(centres: np.ndarray, chosen: list[int], others: list[int], apart: fl
             added.append(i)
             at.append(centres[i])
     return added
+
+
+def _more_places(indices: list[int], looks, hyps: list[Hypothesis], poses: dict, models: list[PreparedModel], *,
+                 refined: list[int], short: set[int], places: int) -> list[int]:
+    """For each model index in ``short``, the best-looking of ``indices`` (into ``hyps``, posed at ``poses[j]``;
+    ``looks[j].score``) that lie at new places, up to ``places`` of them: a place as in ``_places`` (half the
+    model's diameter), new where none of the model's ``refined`` candidates lies."""
+    out = []
+    done = set(refined)
+    for mi in sorted(short):
+        js = sorted((j for j in indices if hyps[j].model_index == mi), key=lambda j: (-looks[j].score, j))
+        if not js:
+            continue
+        pm = models[mi]
+        cand = [j for j in refined if hyps[j].model_index == mi] + [j for j in js if j not in done]
+        T = np.array([poses[j] for j in cand])
+        centres = T[:, :3, :3] @ pm.icp_points.mean(axis=0) + T[:, :3, 3]
+        n_done = sum(hyps[j].model_index == mi for j in refined)
+        apart = 0.5 * pm.model.diameter
+        covered = len(_places(centres, [], list(range(n_done)), apart, n_done))
+        out += [cand[i] for i in _places(centres, list(range(n_done)), list(range(n_done, len(cand))), apart,
+                                         covered + places)]
+    return out
 
 
 class _Timer:
@@ -611,36 +635,62 @@ class Detector:
         # same pose are one (the best-looking of them)
         keep = sorted(_spread_per_model(plausible, look, hyps, start, self.models, rc.max_per_model, spots=spots,
                                         places=0 if spots is None else rc.places))
+        hyps_all, hyps = hyps, [hyps[j] for j in keep]
+        regs, vers = self._refine_and_verify(frame, scene, [(h.model_index, start[j]) for h, j in zip(hyps, keep)], tm)
+        with tm("verify"):
+            order, kept = self._select(frame, scene, hyps, regs, vers, targets=targets, trace=trace)
+        if targets is not None and rc.retry_places > 0:
+            # an object given but left short: its own place may be among the coarse candidates never fully refined
+            got = Counter(self.library[hyps[j].model_index].obj_id for j in kept)
+            short = {o for o, n in targets.items() if got[o] < n}
+            more = _more_places(plausible, look, hyps_all, start, self.models, refined=keep,
+                                short={pm.index for pm in models if pm.model.obj_id in short}, places=rc.retry_places)
+            if more:
+                r, v = self._refine_and_verify(frame, scene, [(hyps_all[j].model_index, start[j]) for j in more], tm)
+                keep, hyps, regs, vers = keep + more, hyps + [hyps_all[j] for j in more], regs + r, vers + v
+                with tm("verify"):
+                    order, kept = self._select(frame, scene, hyps, regs, vers, targets=targets, trace=trace)
+        stats["refined"] = len(hyps)
         if trace is not None:
             trace.first_look, trace.refined = pre, keep
-        hyps_all, hyps = hyps, [hyps[j] for j in keep]
-        stats["refined"] = len(hyps)
-        with tm("refine"):
-            pms = [self.models[hyps_all[j].model_index] for j in keep]
-            regs = icp_many([pm.icp_points for pm in pms], scene.points, scene.normals, [start[j] for j in keep],
-                            cfg.refine, source_normals=[pm.icp_normals for pm in pms], target_tree=scene.tree,
-                            viewpoint=np.zeros(3), workers=self.workers)
-        with tm("verify"):
-            vers = self._verify_poses(frame, scene, [(h.model_index, r.T_target_source) for h, r in zip(hyps, regs)])
-            order = sorted(range(len(hyps)), key=lambda j: (-vers[j].score, j))
-            if targets is None:
-                order = [j for j in order if vers[j].accepted(cfg.verify)]
-            else:
-                order = [j for j in order if vers[j].n_supported > 0]
-            order = self._one_size_per_spot(frame, scene, order, hyps, regs, vers)
-            if targets is not None:
-                kept = self._select_targets(frame, scene, order, hyps, regs, vers, targets=targets, trace=trace)
-            elif cfg.verify.selection == "global":
-                kept = self._select_global(scene, order, hyps, regs, vers, trace)
-            else:
-                kept = resolve_conflicts(order, [v.support for v in vers], cfg.verify.conflict_overlap,
-                                         frame.depth.size)
-        if trace is not None:
             trace.registrations, trace.verifications, trace.accepted, trace.kept = regs, vers, order, kept
         dets = [self._detection(frame, hyps[j].model_index, regs[j], vers[j], hyps[j].n_inliers, hyps[j].group)
                 for j in kept]
         stats["detections"] = len(dets)
         return DetectionResult(dets, tm.t, stats)
+
+    def _refine_and_verify(self, frame: Frame, scene: Scene, poses: list[tuple[int, np.ndarray]], tm: _Timer
+                           ) -> tuple[list[RegistrationResult], list[Verification]]:
+        """The full ICP of each ``(model index, T_scene_model)`` of ``poses`` (all at once, ``refine.icp_many``),
+        and the verification of its result."""
+        pms = [self.models[mi] for mi, _ in poses]
+        with tm("refine"):
+            regs = icp_many([pm.icp_points for pm in pms], scene.points, scene.normals, [T for _, T in poses],
+                            self.config.refine, source_normals=[pm.icp_normals for pm in pms],
+                            target_tree=scene.tree, viewpoint=np.zeros(3), workers=self.workers)
+        with tm("verify"):
+            vers = self._verify_poses(frame, scene, [(mi, r.T_target_source) for (mi, _), r in zip(poses, regs)])
+        return list(regs), vers
+
+    def _select(self, frame: Frame, scene: Scene, hyps: list[Hypothesis], regs: list[RegistrationResult],
+                vers: list[Verification], *, targets: dict[int, int] | None, trace: Trace | None
+                ) -> tuple[list[int], list[int]]:
+        """(order, kept): the refined candidates in play, best score first (without targets, those accepted), and
+        those selection keeps (``_select_targets``, ``_select_global`` or greedy on claimed pixels)."""
+        v = self.config.verify
+        order = sorted(range(len(hyps)), key=lambda j: (-vers[j].score, j))
+        if targets is None:
+            order = [j for j in order if vers[j].accepted(v)]
+        else:
+            order = [j for j in order if vers[j].n_supported > 0]
+        order = self._one_size_per_spot(frame, scene, order, hyps, regs, vers)
+        if targets is not None:
+            kept = self._select_targets(frame, scene, order, hyps, regs, vers, targets=targets, trace=trace)
+        elif v.selection == "global":
+            kept = self._select_global(scene, order, hyps, regs, vers, trace)
+        else:
+            kept = resolve_conflicts(order, [x.support for x in vers], v.conflict_overlap, frame.depth.size)
+        return order, kept
 
     def _detection(self, frame: Frame, model_index: int, reg: RegistrationResult, ver: Verification,
                    n_inliers: int, group: int) -> Detection:

@@ -34,11 +34,14 @@ class RefineConfig:
     places: int = param(3, "with targets: a model's full ICPs cover at least this many places of the scene (posed "
                            "centroids half its diameter apart), one more ICP for each place the max_per_model best "
                            "leave out (0: off)")
+    retry_places: int = param(3, "with targets: a given object left with fewer poses than wanted after selection "
+                                 "has its best-looking coarse candidates at up to this many new places refined "
+                                 "fully, and selection runs again (0: off)")
 
     def __post_init__(self):
         check_positive(self, "iterations", "max_distance", "kernel", "max_per_model", "coarse_distance",
                        "coarse_points")
-        for n in ("candidates", "places"):
+        for n in ("candidates", "places", "retry_places"):
             if getattr(self, n) < 0:
                 raise ConfigError(f"RefineConfig.{n} must be >= 0, got {getattr(self, n)}")
 

@@ -52,6 +52,7 @@ def test_dump_roundtrip(tmp_path):
     ("grouping = 3\n", "[grouping] must be a table"),
     ("[matching]\nscreen_eps = -1\n", "MatchingConfig.screen_eps must be >= 0"),
     ("[refine]\nplaces = -1\n", "RefineConfig.places must be >= 0"),
+    ("[refine]\nretry_places = -1\n", "RefineConfig.retry_places must be >= 0"),
 ])
 def test_bad_presets(tmp_path, text, words):
     p = tmp_path / "bad.toml"
