@@ -34,7 +34,7 @@ class RefineConfig:
     places: int = param(3, "with targets: a model's full ICPs cover at least this many places of the scene (posed "
                            "centroids half its diameter apart), one more ICP for each place the max_per_model best "
                            "leave out (0: off)")
-    retry_places: int = param(3, "with targets: a given object left with fewer poses than wanted after selection "
+    retry_places: int = param(1, "with targets: a given object left with fewer poses than wanted after selection "
                                  "has its best-looking coarse candidates at up to this many new places refined "
                                  "fully, and selection runs again (0: off)")
 

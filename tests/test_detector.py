@@ -356,8 +356,8 @@ def test_with_targets_the_redone_walk_takes_each_object_only_up_to_its_count(tmp
 def test_with_targets_an_object_left_short_is_refined_at_more_places(tmp_path, library):
     """Scene 3 of the crowded suite (``pcdet synth --objects 3 --instances 3 --distractors 3 --seed 2026``),
     objects given. One of the step blocks given is left without a pose after selection: the full ICPs of the step
-    block went to other places. With ``refine.retry_places`` its best-looking coarse candidates at up to 3 new
-    places are refined and selection runs again, and every step block is found within ADD-S 0.1 d (the third at
+    block went to other places. With ``refine.retry_places`` (1) its best-looking coarse candidate at a new place
+    is refined and selection runs again, and every step block is found within ADD-S 0.1 d (the third at
     0.015 d measured); with ``retry_places = 0`` one is missed."""
     from pcdet.synth import SynthConfig, synthesize
 
