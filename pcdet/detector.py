@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import os
 import time
-from concurrent.futures import ThreadPoolExecutor
 from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -200,7 +200,7 @@ def _more_places(indices: list[int], looks, hyps: list[Hypothesis], poses: dict,
         centres = T[:, :3, :3] @ pm.icp_points.mean(axis=0) + T[:, :3, 3]
         n_done = sum(hyps[j].model_index == mi for j in refined)
         apart = 0.5 * pm.model.diameter
-        covered = len(_places(centres, [], list(range(n_done)), apart, n_done))
+        covered = len(_places(centres, [], list(range(n_done)), apart, n_done))  # places the refined ones cover
         out += [cand[i] for i in _places(centres, list(range(n_done)), list(range(n_done, len(cand))), apart,
                                          covered + places)]
     return out
@@ -646,8 +646,10 @@ class Detector:
             more = _more_places(plausible, look, hyps_all, start, self.models, refined=keep,
                                 short={pm.index for pm in models if pm.model.obj_id in short}, places=rc.retry_places)
             if more:
-                r, v = self._refine_and_verify(frame, scene, [(hyps_all[j].model_index, start[j]) for j in more], tm)
-                keep, hyps, regs, vers = keep + more, hyps + [hyps_all[j] for j in more], regs + r, vers + v
+                more_regs, more_vers = self._refine_and_verify(
+                    frame, scene, [(hyps_all[j].model_index, start[j]) for j in more], tm)
+                keep, hyps = keep + more, hyps + [hyps_all[j] for j in more]
+                regs, vers = regs + more_regs, vers + more_vers
                 with tm("verify"):
                     order, kept = self._select(frame, scene, hyps, regs, vers, targets=targets, trace=trace)
         stats["refined"] = len(hyps)
