@@ -154,17 +154,19 @@ def _spread_per_model(indices: list[int], looks, hyps: list[Hypothesis], poses: 
         rest = [i for i in order if i not in taken][:limit - len(first)]
         chosen = sorted([*taken, *rest])  # positions in js: best-looking first
         if places > 0:
-            centres = T[:, :3, :3] @ pm.icp_points.mean(axis=0) + T[:, :3, 3]
+            centres = _centres(T, pm)
             inside = set(chosen)
             chosen += _places(centres, chosen, [i for i in order if i not in inside], 0.5 * pm.model.diameter, places)
         out += [js[i] for i in sorted(chosen)]
     return out
 
 
-def _places(centres: np.ndarray, chosen: list[int], others: list[int], apart: float, places: int) -> list[int]:
+def _places(centres: np.ndarray, chosen: list[int], others: list[int], apart: float, places: int, *,
+            beyond: bool = False) -> list[int]:
     """Of ``others`` (indices into ``centres`` (N, 3), m, best first), the first at new places, until ``chosen``
-    and they cover ``places`` places: a place is a centre at least ``apart`` (m) from every place's first centre,
-    counted over ``chosen`` in its order first."""
+    and they cover ``places`` places (with ``beyond``: until they add ``places`` to those ``chosen`` covers): a
+    place is a centre at least ``apart`` (m) from every place's first centre, counted over ``chosen`` in its order
+    first."""
     at: list[np.ndarray] = []
 
     def new(i: int) -> bool:
@@ -173,6 +175,8 @@ def _places(centres: np.ndarray, chosen: list[int], others: list[int], apart: fl
     for i in chosen:
         if new(i):
             at.append(centres[i])
+    if beyond:
+        places += len(at)
     added = []
     for i in others:
         if len(at) >= places:
@@ -191,19 +195,22 @@ def _more_places(indices: list[int], looks, hyps: list[Hypothesis], poses: dict,
     out = []
     done = set(refined)
     for mi in sorted(short):
-        js = sorted((j for j in indices if hyps[j].model_index == mi), key=lambda j: (-looks[j].score, j))
-        if not js:
+        ref = [j for j in refined if hyps[j].model_index == mi]
+        rest = sorted((j for j in indices if hyps[j].model_index == mi and j not in done),
+                      key=lambda j: (-looks[j].score, j))
+        if not rest:
             continue
         pm = models[mi]
-        cand = [j for j in refined if hyps[j].model_index == mi] + [j for j in js if j not in done]
-        T = np.array([poses[j] for j in cand])
-        centres = T[:, :3, :3] @ pm.icp_points.mean(axis=0) + T[:, :3, 3]
-        n_done = sum(hyps[j].model_index == mi for j in refined)
-        apart = 0.5 * pm.model.diameter
-        covered = len(_places(centres, [], list(range(n_done)), apart, n_done))  # places the refined ones cover
-        out += [cand[i] for i in _places(centres, list(range(n_done)), list(range(n_done, len(cand))), apart,
-                                         covered + places)]
+        cand = ref + rest
+        centres = _centres(np.array([poses[j] for j in cand]), pm)
+        out += [cand[i] for i in _places(centres, list(range(len(ref))), list(range(len(ref), len(cand))),
+                                         0.5 * pm.model.diameter, places, beyond=True)]
     return out
+
+
+def _centres(T: np.ndarray, pm: PreparedModel) -> np.ndarray:
+    """(N, 3) m: the centroid of ``pm``'s ICP samples at each pose of ``T`` (N, 4, 4)."""
+    return T[:, :3, :3] @ pm.icp_points.mean(axis=0) + T[:, :3, 3]
 
 
 class _Timer:
@@ -409,9 +416,11 @@ class Detector:
                                                     [pm.colours for pm in models])
         return self._indexes[key]
 
-    def _select_global(self, scene: Scene, order, hyps, regs, vers, trace: Trace | None = None) -> list[int]:
+    def _select_global(self, scene: Scene, order, hyps, regs, vers, trace: Trace | None = None, *,
+                       targets: dict[int, int] | None = None) -> list[int]:
         """The subset of ``order`` (indices of accepted hypotheses) that best explains the scene
-        (``global_verify``), best verification score first; its inputs go to ``trace.selection``."""
+        (``global_verify``), with at most ``targets[obj_id]`` poses of each object where given, best verification
+        score first; its inputs go to ``trace.selection``."""
         v = self.config.verify
         pts = [transform(regs[j].T_target_source, self.library[hyps[j].model_index].points) for j in order]
         ratio = np.array([vers[j].n_violations / max(vers[j].n_supported, 1) for j in order])
@@ -422,7 +431,9 @@ class Detector:
         conflicts = same_object_conflicts(terms, family, v.conflict_overlap)
         if trace is not None:
             trace.selection = (terms, conflicts)
-        chosen, _ = select(terms, v.duplicate_weight, v.clutter_weight, v.violation_weight, conflicts=conflicts)
+        groups = None if targets is None else [self.library[hyps[j].model_index].obj_id for j in order]
+        chosen, _ = select(terms, v.duplicate_weight, v.clutter_weight, v.violation_weight, conflicts=conflicts,
+                           groups=groups, caps=targets)
         return [order[i] for i in sorted(chosen)]
 
     def _select_targets(self, frame: Frame, scene: Scene, order: list[int], hyps: list[Hypothesis],
@@ -436,24 +447,21 @@ class Detector:
         its poses that lost its pixels so (the step block kept elsewhere at 0.75 where its true pose scored 0.88),
         and selection is global, the walk is redone with the set that best explains the scene
         (``_select_global``) first, so that the object explaining the spot keeps it and the other takes its next
-        pose elsewhere, if any. That set is cut to the targets' counts first, best score first: a pose of an object
-        beyond its count (a second step block where the bracket stands, scoring 0.41) would be dropped by the count
-        after taking the pixels of the pose that explains its spot (the bracket's, 0.71). Returns the kept
-        candidates, best score first."""
+        pose elsewhere, if any. That set holds no more poses of an object than its count (``global_verify.select``'s
+        caps): beyond it, a pose (a second step block where the bracket stands, scoring 0.41) would be dropped by
+        the count after taking the pixels of the pose that explains its spot (the bracket's, 0.71). Returns the
+        kept candidates, best score first."""
         v = self.config.verify
         supports = [x.support for x in vers]
         obj = [self.library[h.model_index].obj_id for h in hyps]
 
-        def counted(walk: list[int]) -> list[int]:  # each object's first targets[obj_id]
-            left, kept = dict(targets), []
-            for j in walk:
-                if left.get(obj[j], 0) > 0:
-                    kept.append(j)
-                    left[obj[j]] -= 1
-            return kept
-
         def take(walk: list[int]) -> list[int]:
-            return counted(resolve_conflicts(walk, supports, v.conflict_overlap, frame.depth.size))
+            left, chosen = dict(targets), []
+            for j in resolve_conflicts(walk, supports, v.conflict_overlap, frame.depth.size):
+                if left.get(obj[j], 0) > 0:
+                    chosen.append(j)
+                    left[obj[j]] -= 1
+            return chosen
 
         chosen = take(order)
         has = {o: sum(obj[j] == o for j in order) for o in targets}
@@ -468,7 +476,7 @@ class Detector:
         if v.selection != "global" or (all(got[o] >= min(n, has[o]) for o, n in targets.items())
                                        and not passed_over):
             return chosen
-        first = counted(self._select_global(scene, order, hyps, regs, vers, trace))
+        first = self._select_global(scene, order, hyps, regs, vers, trace, targets=targets)
         taken = set(first)
         return sorted(take(first + [j for j in order if j not in taken]), key=rank.get)  # best score first
 

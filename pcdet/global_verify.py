@@ -88,11 +88,13 @@ def _near(points: np.ndarray, centres: np.ndarray, radius: float, *, inclusive: 
 
 
 def select(terms: GlobalTerms, w_dup: float, w_clutter: float, w_viol: float, max_steps: int = 200, *,
-           conflicts: np.ndarray | None = None) -> tuple[list[int], float]:
+           conflicts: np.ndarray | None = None, groups: list[int] | None = None,
+           caps: dict[int, int] | None = None) -> tuple[list[int], float]:
     """Maximise f (module docstring) over subsets of the candidates. Returns (chosen indices in the order
     they were added, f). Ties are broken by the lower index, so the result depends only on the input.
     ``conflicts`` : optional (H, H) bool; two candidates marked there are never chosen together (two poses of
-    one object that claim the same surface)."""
+    one object that claim the same surface). ``groups`` (H,) and ``caps``: at most ``caps[g]`` candidates of
+    group g are chosen together (the instances of each object given, BOP's localisation task)."""
     H = len(terms.explained)
     if H == 0:
         return [], 0.0
@@ -112,12 +114,15 @@ def select(terms: GlobalTerms, w_dup: float, w_clutter: float, w_viol: float, ma
         return f
 
     sel = np.zeros(H, bool)
+    taken: dict[int, int] = dict.fromkeys(groups or (), 0)  # chosen per group (with caps)
     cur = 0.0
     order: list[int] = []
     for _ in range(max_steps):
         best, best_h = cur, -1
         for h in range(H):
             if not sel[h] and conflicts is not None and (conflicts[h] & sel).any():
+                continue
+            if not sel[h] and caps is not None and taken[groups[h]] >= caps.get(groups[h], H):
                 continue
             sel[h] = ~sel[h]
             v = value(sel)
@@ -132,6 +137,8 @@ def select(terms: GlobalTerms, w_dup: float, w_clutter: float, w_viol: float, ma
             order.append(best_h)
         else:
             order.remove(best_h)
+        if caps is not None:
+            taken[groups[best_h]] += 1 if sel[best_h] else -1
     return order, cur
 
 

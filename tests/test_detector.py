@@ -265,6 +265,7 @@ def test_places_adds_the_best_candidates_at_new_places_until_enough_are_covered(
     assert _places(centres, [0, 1], [2, 3, 4, 5], 0.1, 2) == [3]
     assert _places(centres, [0, 3, 5], [1, 2, 4], 0.1, 3) == []
     assert _places(centres, [0], [1, 2], 0.1, 3) == []  # no other place to take
+    assert _places(centres, [0, 1], [2, 3, 4, 5], 0.1, 1, beyond=True) == [3]  # one place more than chosen cover
 
 
 def _six_part_scene(tmp_path, library, scene: int):
@@ -330,8 +331,8 @@ def test_with_targets_the_redone_walk_takes_each_object_only_up_to_its_count(tmp
     best explains the scene holds two step blocks: the true one (0.90) and one laid where the bracket stands (0.41),
     which explains a few more points than the bracket's pose (0.71, 0.069 d from its truth). One step block is
     given, so the second is dropped by the count; taken into the walk before that, it took the bracket's pixels and
-    the bracket was lost. Cut to the count first, the set leaves the bracket its spot: it is kept within ADD 0.1 d,
-    and the step block once."""
+    the bracket was lost. With the counts as caps of the global set (``global_verify.select``), the set leaves the
+    bracket its spot: it is kept within ADD 0.1 d, and the step block once."""
     from pcdet.detector import Trace
     from pcdet.global_verify import select
     from pcdet.metrics import add
@@ -346,7 +347,7 @@ def test_with_targets_the_redone_walk_takes_each_object_only_up_to_its_count(tmp
     assert [d.obj_id for d in res.detections].count(5) == 1
     assert any(d.obj_id == 1 and add(d.T_cam_model, T_gt, bracket.points) < 0.1 * bracket.diameter
                for d in res.detections)
-    # the situation: the globally best set holds two step blocks
+    # the situation: the globally best set without caps holds two step blocks
     terms, conflicts = trace.selection
     v = det.config.verify
     chosen, _ = select(terms, v.duplicate_weight, v.clutter_weight, v.violation_weight, conflicts=conflicts)

@@ -112,3 +112,14 @@ def test_what_an_object_stands_on_is_neither_its_clutter_nor_explained_by_it():
     assert len(held.explained[2]) == 0 and len(held.clutter[2]) == 0
     assert select(bare, 1.0, 5.0, 1.0)[0] == []
     assert select(held, 1.0, 5.0, 1.0)[0] == [0]
+
+
+def test_caps_bound_the_candidates_of_a_group():
+    """Two copies of one object side by side, both candidates of group 7: both explain the scene and are chosen;
+    capped at one for the group, only the first is."""
+    A = _grid(0.0, 0.06, 0.0, 0.06)
+    B = _grid(0.1, 0.16, 0.0, 0.06)
+    t = _terms(np.vstack([A, B]), [A.copy(), B.copy()])
+    assert sorted(select(t, 1.0, 5.0, 1.0)[0]) == [0, 1]
+    assert select(t, 1.0, 5.0, 1.0, groups=[7, 7], caps={7: 1})[0] == [0]
+    assert sorted(select(t, 1.0, 5.0, 1.0, groups=[7, 7], caps={7: 2})[0]) == [0, 1]
