@@ -15,7 +15,11 @@ motions (seeded: any rotation, a shift of about a metre along each axis). Their 
 3 cm (their SOURCE.txt), so the reference is point-to-plane ICP from it; a registration succeeds within 2 cm RMS
 and 1 degree of that reference.
 
-Run:  python scripts/bench_register.py [--limit N] [--gaps 24 48] [--fragments N]
+``--scans DIR [DIR ...]``: instead, the scans of other folders in the Stanford layout (the scans as PLY files and
+one .conf whose "bmesh" lines give their poses): each scan paired with the ``--steps`` next ones in the .conf's
+order, round the end (on a turntable set such as the dragon's, its neighbours 1 and 2 positions away).
+
+Run:  python scripts/bench_register.py [--limit N] [--gaps 24 48] [--fragments N] [--scans DIR ... [--steps 1 2]]
 """
 from __future__ import annotations
 
@@ -108,6 +112,30 @@ def pairs(gaps=(24, 48)) -> list[tuple[Path, Path, np.ndarray, str]]:
     return out
 
 
+def scan_pairs(folder: Path, steps=(1, 2)) -> list[tuple[Path, Path, np.ndarray, str]]:
+    """(source, target, true T_target_source, label) for every scan of ``folder`` (Stanford layout, module
+    docstring) and each of the ``steps``-th next scans in its .conf's order, round the end."""
+    confs = sorted(folder.glob("*.conf"))
+    if len(confs) != 1:
+        raise SystemExit(f"error: {folder}: {len(confs)} .conf files; one is needed (the scans' poses)")
+    conf = read_conf(confs[0])
+    names = list(conf)
+    missing = [n for n in names if not (folder / n).is_file()]
+    if missing or len(names) < 2:
+        raise SystemExit(f"error: {confs[0]}: " + (f"names scans that are missing: {', '.join(missing)}" if missing
+                                                   else "fewer than two bmesh lines"))
+    out = []
+    for step in steps:
+        for i, a in enumerate(names):
+            b = names[(i + step) % len(names)]
+            if a == b:
+                continue
+            T = np.linalg.inv(conf[b]) @ conf[a]
+            angle = np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1, 1)))
+            out.append((folder / a, folder / b, T, f"{folder.name}: {a} -> {b} ({angle:.0f} deg)"))
+    return out
+
+
 def fragments(n: int, seed: int = 7) -> None:
     """The fragment pair under ``n`` rigid motions (module docstring): a table of both methods' errors and times."""
     import open3d as o3d
@@ -162,6 +190,10 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=None, help="pcdet's RANSAC draws (default: RegisterConfig's).")
     ap.add_argument("--gaps", type=int, nargs="+", default=[24, 48],
                     help="The dragon's pairs this many degrees apart (multiples of 24; default: 24 48).")
+    ap.add_argument("--scans", type=Path, nargs="+", default=None,
+                    help="Instead: the scans of these folders in the Stanford layout (scans + one .conf).")
+    ap.add_argument("--steps", type=int, nargs="+", default=[1, 2],
+                    help="With --scans: each scan with the scans this many places on in the .conf (default: 1 2).")
     ap.add_argument("--fragments", type=int, default=0,
                     help="Instead: Open3D's two room-scale fragments under this many rigid motions.")
     a = ap.parse_args()
@@ -170,7 +202,12 @@ def main() -> None:
         return
     if any(g % 24 or not 0 < g < 360 for g in a.gaps):
         ap.error(f"--gaps takes multiples of 24 between 24 and 336, got {a.gaps}")
-    todo = pairs(tuple(a.gaps))[: a.limit or None]
+    if any(n < 1 for n in a.steps):
+        ap.error(f"--steps takes positive numbers, got {a.steps}")
+    if a.scans:
+        todo = [p for d in a.scans for p in scan_pairs(d, tuple(a.steps))][: a.limit or None]
+    else:
+        todo = pairs(tuple(a.gaps))[: a.limit or None]
     print("| pair | pcdet error (mm) | pcdet s | Open3D error (mm) | Open3D s |")
     print("|---|---|---|---|---|")
     rows = []
