@@ -5,8 +5,9 @@ how many of those have a correct candidate match (a model keypoint that the true
 grouping's inlier distance) and how many of the matched ones took part in grouping (``grouping.max_keypoints``
 bounds the keypoints a model groups), and how those fall into the scene's clusters (grouping pairs keypoints
 within one cluster only, so an instance split by a depth jump offers each part alone); the error of the best raw
-hypothesis and of the best refined one (ADD or ADD-S, in diameters); whether the best raw one was refined; where verification ranked the best refined one among that
-model's refined poses; and what was kept instead, with its score terms. Each miss is attributed to one stage:
+hypothesis and of the best refined one (ADD or ADD-S, in diameters); whether the best raw one was refined; where
+verification ranked the best refined one among that model's refined poses; and what was kept instead, with its
+score terms. Each miss is attributed to one stage:
 
 - generation: no raw hypothesis and no refined pose within the threshold (``keypoints`` when fewer than 3
   keypoints on the instance with a correct match took part in grouping: it had nothing to work with);

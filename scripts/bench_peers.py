@@ -200,8 +200,8 @@ def main():
                                SynthConfig(scenes=args.scenes, objects=args.objects, seed=args.seed))
     ds = BopDataset(args.data)
     frames = [(img, ds.frame(img), ds.targets(img)) for img in ds]
-    makers = {"pcdet": Pcdet, "pcdet-no-targets": PcdetFree, "pcdet-gc": PcdetGC, "pcdet-hough": PcdetHough, "o3d-tutorial": O3DTutorial,
-              "o3d-careful": O3DCareful, "opencv-ppf": OpenCVPPF}
+    makers = {"pcdet": Pcdet, "pcdet-no-targets": PcdetFree, "pcdet-gc": PcdetGC, "pcdet-hough": PcdetHough,
+              "o3d-tutorial": O3DTutorial, "o3d-careful": O3DCareful, "opencv-ppf": OpenCVPPF}
     rows = []
     for name in args.only.split(","):
         method = makers[name](lib)

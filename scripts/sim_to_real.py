@@ -199,8 +199,9 @@ def detection_table(ds: BopDataset, refs, sensors: list[str], pipeline: str | No
         print(f"  frame {i + 1}/{len(refs)}", flush=True)
     extra = f"; the twins' meshes bent by {mesh_error * 1000:.1f} mm RMS" if mesh_error > 0 else ""
     print(f"\nDetection with the object given ({len(refs)} frames; {pipeline or 'default'} pipeline{extra})")
-    print("| frames | found (ADD < 0.1 d) | keypoints on the object (median) | share with a correct match (median) | "
-          "best raw hypothesis (d, median) | surface residual at the pose found (mm RMS, median) | missed (image ids) |")
+    print("| frames | found (ADD < 0.1 d) | keypoints on the object (median) | share with a correct match (median) "
+          "| best raw hypothesis (d, median) | surface residual at the pose found (mm RMS, median) "
+          "| missed (image ids) |")
     print("|---|---|---|---|---|---|---|")
     for name, rs in rows.items():
         found = sum(r.stage == "found" for r in rs)

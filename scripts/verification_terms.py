@@ -1,10 +1,10 @@
 """How well each verification term separates true poses from wrong ones on real frames.
 
 Runs the detector (with the objects given, BOP localisation) on every STEP-th frame of each BOP dataset, with
-every coarse candidate refined, and takes every pose that reached the full ICP. A pose is true when its ADD (ADD-S with --adds) is under 0.1
-diameters. For each candidate term it prints the area under the ROC curve (the chance that a random true pose
-scores above a random wrong one) and how often the best-scoring pose of an object in a frame is a true one
-(when one exists), and writes the score distributions as an SVG plot.
+every coarse candidate refined, and takes every pose that reached the full ICP. A pose is true when its ADD (ADD-S
+with --adds) is under 0.1 diameters. For each candidate term it prints the area under the ROC curve (the chance
+that a random true pose scores above a random wrong one) and how often the best-scoring pose of an object in a
+frame is a true one (when one exists), and writes the score distributions as an SVG plot.
 
 Terms: the verification score the detector ranks by (depth only), its parts, and two that are measured here
 and not used by the detector: normal agreement (share of the supported pixels whose measured surface normal is

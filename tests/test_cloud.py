@@ -41,7 +41,8 @@ def test_voxel_keys_are_equal_exactly_within_one_cell(rng):
 def test_plane_found_with_outliers(rng):
     n = np.array([0.1, -0.8, -0.3])
     n /= np.linalg.norm(n)
-    u = np.cross(n, [1, 0, 0]); u /= np.linalg.norm(u)
+    u = np.cross(n, [1, 0, 0])
+    u /= np.linalg.norm(u)
     v = np.cross(n, u)
     P = rng.uniform(-0.5, 0.5, (3000, 2))
     plane_pts = np.array([0, 0, 1.0]) + P[:, :1] * u + P[:, 1:] * v + rng.normal(0, 0.002, (3000, 1)) * n

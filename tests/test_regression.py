@@ -124,8 +124,8 @@ def third_party(tmp_path_factory):
 def test_many_instances_of_third_party_meshes(third_party):
     """Issue 11: meshes pcdet's authors did not make, up to three copies each among distractors, the default
     pipeline, no targets: recall (ADD-S < 0.1 d) >= 0.9 and precision >= 0.9 on 77 instances, synth's default
-    scenes. Measured: 0.935 / 0.960 (2026-12-02); on the idealised scenes of before
-    (``sensor="structured_light"``, no mesh error) 0.961 / 0.949 (0.935 / 0.947 before the per-model keypoint bound and the approximate descriptor
+    scenes. Measured: 0.935 / 0.960 (2026-12-02); on the idealised scenes of before (``sensor="structured_light"``,
+    no mesh error) 0.961 / 0.949 (0.935 / 0.947 before the per-model keypoint bound and the approximate descriptor
     search; 0.883 / 0.944 before the ICP budget covered distinct spots first: the boxes' copies and their
     turned-over poses took every slot); most false detections are boxes on distractor boxes."""
     ds, lib = third_party

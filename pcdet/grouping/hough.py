@@ -228,7 +228,7 @@ def _near_cells(centre: np.ndarray, b: float, cells: np.ndarray) -> np.ndarray:
     point within 1.5 ``b`` of some peak (``cells`` (P, 3), at (cell + 0.5) * b) can fall in: the cells from
     peak - 2 to peak + 1 on each axis. Only these can be a peak's voters."""
     base = np.floor(centre / b - 0.5).astype(np.int64)
-    offsets = np.array([(i, j, l) for i in range(-2, 2) for j in range(-2, 2) for l in range(-2, 2)])
+    offsets = np.array([(i, j, m) for i in range(-2, 2) for j in range(-2, 2) for m in range(-2, 2)])
     block = (cells.astype(np.int64)[:, None, :] + offsets[None]).reshape(-1, 3)
     lo = np.minimum(base.min(axis=0), block.min(axis=0))
     span = np.maximum(base.max(axis=0), block.max(axis=0)) - lo + 1
@@ -266,8 +266,8 @@ def _vote_peaks(centre: np.ndarray, b: float, min_votes: float, weight: np.ndarr
                 weights.append(w if weight is None else w * weight)
     codes, weights = np.concatenate(codes), np.concatenate(weights)
     # a neighbour's code differs by one of these (the margin keeps every voted cell's neighbours in the box)
-    steps = np.array([(i * span[1] + j) * span[2] + l for i in (-1, 0, 1) for j in (-1, 0, 1) for l in (-1, 0, 1)
-                      if (i, j, l) != (0, 0, 0)])
+    steps = np.array([(i * span[1] + j) * span[2] + m for i in (-1, 0, 1) for j in (-1, 0, 1) for m in (-1, 0, 1)
+                      if (i, j, m) != (0, 0, 0)])
     if int(np.prod(span)) <= DENSE_CELLS:
         votes = np.bincount(codes, weights=weights, minlength=int(np.prod(span)))
         cand = np.flatnonzero(votes >= min_votes)
