@@ -190,7 +190,10 @@ class RansacGrouper:
         if len(lead) == 0:
             return []
         Tr, inls = refit_batch(T[lead], cm[pool], cs[pool], tau)
-        n_pts = np.array([len(np.unique(pool[i] // k)) for i in inls])
+        # distinct scene keypoints among each pose's inliers: (pose, keypoint) cells counted once
+        owner = np.repeat(np.arange(len(inls)), [len(i) for i in inls])
+        cells = np.unique(owner * n_s + pool[np.concatenate(inls)] // k)
+        n_pts = np.bincount(cells // n_s, minlength=len(inls))
         keep = np.flatnonzero(n_pts >= min_inl)
         if len(keep) == 0:
             return []
