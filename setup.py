@@ -1,6 +1,7 @@
 """The compiled part of pcdet, beside pyproject.toml (which holds everything else): small C kernels for
 ``pcdet.graph`` (common neighbours of each edge, and the length and angle tests of candidate pairs),
-``pcdet.residuals`` (correspondences within a radius of many poses, and Tukey-weighted Kabsch sums), ``pcdet.grid``
+``pcdet.residuals`` (correspondences within a radius of many poses, and Tukey-weighted Kabsch sums), ``pcdet.align``
+(the rotation of many Kabsch problems), ``pcdet.grid``
 (the nearest point within a short radius, on a hashed voxel grid) and ``pcdet.features`` (FPFH descriptors, their
 neighbours found on that grid). ``optional``: where no C compiler is at hand the install goes on without them, and
 pcdet computes the same results with numpy and scipy (FPFH with open3d, which orders neighbours at the same
@@ -12,4 +13,4 @@ from setuptools import Extension, setup
 # (pcdet/_grid.c) and the FPFH pair features as open3d's (pcdet/_fpfh.c)
 setup(ext_modules=[Extension(f"pcdet.{name}", [f"pcdet/{name}.c"], depends=["pcdet/_cells.h"],
                              extra_compile_args=["-ffp-contract=off"], optional=True)
-                   for name in ("_graph", "_residuals", "_grid", "_fpfh")])
+                   for name in ("_graph", "_residuals", "_grid", "_fpfh", "_align")])

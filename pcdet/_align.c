@@ -1,0 +1,115 @@
+/* Compiled kernel of pcdet.align (the Python side checks shapes and dtypes and documents both).
+ *
+ * rigid_from_covariance(H, cs, cd, T): for each of B problems, the rotation R maximising trace(R H) over proper
+ * rotations, from the cross-covariance H (3, 3) of centred source and target points (H[i][j] = sum s_i d_j), and
+ * T = [R, cd - R cs; 0 0 0 1] (4, 4). H (B, 3, 3), cs and cd (B, 3), T (B, 4, 4), float64, row-major.
+ *
+ * R comes from the unit quaternion of Horn's 4 x 4 symmetric matrix N(H) (Horn 1987): the eigenvector of its
+ * largest eigenvalue, found by cyclic Jacobi rotations. That is the rotation Kabsch's SVD gives (V diag(1, 1,
+ * det) U^T), without a reflection; where the largest eigenvalue is repeated (points on a line, or none) any of its
+ * rotations is optimal, and the first of the equal eigenvalues is taken. The interpreter lock is released while it
+ * works: numpy's batched SVD holds it, so grouping on several threads queued behind it.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <stdint.h>
+
+/* Eigen-decomposition of the symmetric 4 x 4 matrix A (overwritten: its diagonal ends as the eigenvalues) by
+ * cyclic Jacobi sweeps; V's columns are the eigenvectors. */
+static void jacobi4(double A[4][4], double V[4][4]) {
+    for (int i = 0; i < 4; i++)
+        for (int j = 0; j < 4; j++) V[i][j] = (i == j);
+    for (int sweep = 0; sweep < 64; sweep++) {
+        double off = 0, diag = 0;
+        for (int p = 0; p < 4; p++) {
+            diag += A[p][p] * A[p][p];
+            for (int q = p + 1; q < 4; q++) off += A[p][q] * A[p][q];
+        }
+        if (off == 0 || off < 1e-34 * diag) break; /* off-diagonal below 1e-17 of the diagonal's size */
+        for (int p = 0; p < 3; p++)
+            for (int q = p + 1; q < 4; q++) {
+                double apq = A[p][q];
+                if (apq == 0) continue;
+                double theta = (A[q][q] - A[p][p]) / (2 * apq);
+                double t = (theta >= 0 ? 1.0 : -1.0) / (fabs(theta) + sqrt(theta * theta + 1));
+                double c = 1 / sqrt(t * t + 1), s = t * c;
+                for (int k = 0; k < 4; k++) { /* A <- A J, then A <- J^T A, J the rotation in the (p, q) plane */
+                    double akp = A[k][p], akq = A[k][q];
+                    A[k][p] = c * akp - s * akq;
+                    A[k][q] = s * akp + c * akq;
+                }
+                for (int k = 0; k < 4; k++) {
+                    double apk = A[p][k], aqk = A[q][k];
+                    A[p][k] = c * apk - s * aqk;
+                    A[q][k] = s * apk + c * aqk;
+                }
+                A[p][q] = A[q][p] = 0;
+                for (int k = 0; k < 4; k++) {
+                    double vkp = V[k][p], vkq = V[k][q];
+                    V[k][p] = c * vkp - s * vkq;
+                    V[k][q] = s * vkp + c * vkq;
+                }
+            }
+    }
+}
+
+static void rigid(const double *H, const double *cs, const double *cd, double *T) {
+    double xx = H[0], xy = H[1], xz = H[2], yx = H[3], yy = H[4], yz = H[5], zx = H[6], zy = H[7], zz = H[8];
+    double N[4][4] = {{xx + yy + zz, yz - zy, zx - xz, xy - yx},
+                      {yz - zy, xx - yy - zz, xy + yx, zx + xz},
+                      {zx - xz, xy + yx, -xx + yy - zz, yz + zy},
+                      {xy - yx, zx + xz, yz + zy, -xx - yy + zz}};
+    double V[4][4];
+    jacobi4(N, V);
+    int best = 0;
+    for (int i = 1; i < 4; i++)
+        if (N[i][i] > N[best][best]) best = i;
+    double w = V[0][best], x = V[1][best], y = V[2][best], z = V[3][best];
+    double n = sqrt(w * w + x * x + y * y + z * z);
+    w /= n, x /= n, y /= n, z /= n;
+    double R[9] = {w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y),
+                   2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x),
+                   2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z};
+    for (int i = 0; i < 3; i++) {
+        T[4 * i + 0] = R[3 * i + 0];
+        T[4 * i + 1] = R[3 * i + 1];
+        T[4 * i + 2] = R[3 * i + 2];
+        T[4 * i + 3] = cd[i] - (R[3 * i] * cs[0] + R[3 * i + 1] * cs[1] + R[3 * i + 2] * cs[2]);
+    }
+    T[12] = T[13] = T[14] = 0;
+    T[15] = 1;
+}
+
+static PyObject *rigid_from_covariance(PyObject *self, PyObject *args) {
+    Py_buffer Hb, Sb, Db, Tb;
+    if (!PyArg_ParseTuple(args, "y*y*y*w*", &Hb, &Sb, &Db, &Tb)) return NULL;
+    PyObject *result = NULL;
+    int64_t B = Hb.len / (9 * 8);
+    if (Hb.len != B * 9 * 8 || Sb.len != B * 3 * 8 || Db.len != B * 3 * 8 || Tb.len != B * 16 * 8) {
+        PyErr_SetString(PyExc_ValueError, "rigid_from_covariance: H (B, 3, 3), cs, cd (B, 3), T (B, 4, 4) float64");
+        goto done;
+    }
+    const double *H = Hb.buf, *cs = Sb.buf, *cd = Db.buf;
+    double *T = Tb.buf;
+    Py_BEGIN_ALLOW_THREADS
+    for (int64_t b = 0; b < B; b++) rigid(H + 9 * b, cs + 3 * b, cd + 3 * b, T + 16 * b);
+    Py_END_ALLOW_THREADS
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    PyBuffer_Release(&Hb);
+    PyBuffer_Release(&Sb);
+    PyBuffer_Release(&Db);
+    PyBuffer_Release(&Tb);
+    return result;
+}
+
+static PyMethodDef methods[] = {
+    {"rigid_from_covariance", rigid_from_covariance, METH_VARARGS,
+     "rigid_from_covariance(H, cs, cd, T): the proper rotation maximising trace(R H) and its translation, each of B"},
+    {NULL, NULL, 0, NULL}};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_align", NULL, -1, methods};
+
+PyMODINIT_FUNC PyInit__align(void) { return PyModule_Create(&module); }
