@@ -627,8 +627,11 @@ class Detector:
         look = pre
         if rc.candidates > 0:
             # raw poses on distinct spots first: near-copies of one pose would all slide to the same place,
-            # and the budget would go to one instance of a crowded scene (or to one box turned every way)
-            coarse = _spread_per_model(plausible, pre, hyps, start, self.models, rc.candidates, spots=spots)
+            # and the budget would go to one instance of a crowded scene (or to one box turned every way); with
+            # targets, at ``places`` places at least, as the full ICPs below: a place that no coarse ICP reaches
+            # cannot be refined fully there either
+            coarse = _spread_per_model(plausible, pre, hyps, start, self.models, rc.candidates, spots=spots,
+                                       places=0 if spots is None else rc.places)
             with tm("refine"):
                 moved = self._coarse_icp(scene, [(hyps[j].model_index, hyps[j].T_scene_model) for j in coarse])
             with tm("verify"):

@@ -31,9 +31,9 @@ class RefineConfig:
     coarse_distance: float = param(0.03, "m; correspondence distance of the coarse ICP (then two thirds of it): "
                                          "raw poses 1-3 cm off come within the full ICP's reach")
     coarse_points: int = param(300, "model samples the coarse ICP moves (evenly taken from the ICP samples)")
-    places: int = param(3, "with targets: a model's full ICPs cover at least this many places of the scene (posed "
-                           "centroids half its diameter apart), one more ICP for each place the max_per_model best "
-                           "leave out (0: off)")
+    places: int = param(3, "with targets: a model's coarse ICPs, and then its full ICPs, cover at least this many "
+                           "places of the scene (posed centroids half its diameter apart), one more ICP for each "
+                           "place the candidates or max_per_model best leave out (0: off)")
     retry_places: int = param(1, "with targets: a given object left with fewer poses than wanted after selection "
                                  "has its best-looking coarse candidates at up to this many new places refined "
                                  "fully, and selection runs again (0: off)")
