@@ -296,5 +296,5 @@ def test_version_names_the_compiled_kernels(monkeypatch):
     assert res.output.splitlines() == [__version__, "compiled kernels: graph, residuals, grid, fpfh, align"]
     monkeypatch.setattr(residuals, "_residuals", None)
     line = _cli("version").output.splitlines()[1]
-    assert line.startswith("compiled kernels: graph, grid, fpfh, align (not built: residuals; numpy and scipy compute the "
-                           "same results")
+    assert line.startswith("compiled kernels: graph, grid, fpfh, align (not built: residuals; numpy and scipy "
+                           "compute the same results")
