@@ -1,11 +1,10 @@
 """The compiled part of pcdet, beside pyproject.toml (which holds everything else): small C kernels for
 ``pcdet.graph`` (common neighbours of each edge, and the length and angle tests of candidate pairs),
 ``pcdet.residuals`` (correspondences within a radius of many poses, and Tukey-weighted Kabsch sums), ``pcdet.align``
-(the rotation of many Kabsch problems), ``pcdet.grid``
-(the nearest point within a short radius, on a hashed voxel grid) and ``pcdet.features`` (FPFH descriptors, their
-neighbours found on that grid). ``optional``: where no C compiler is at hand the install goes on without them, and
-pcdet computes the same results with numpy and scipy (FPFH with open3d, which orders neighbours at the same
-distance by its own rule)."""
+(the rotations of many Kabsch problems), ``pcdet.grid`` (the nearest point within a short radius, on a hashed voxel
+grid) and ``pcdet.features`` (FPFH descriptors, their neighbours found on that grid). ``optional``: where no C
+compiler is at hand the install goes on without them, and pcdet computes the same results with numpy and scipy
+(FPFH with open3d, which orders neighbours at the same distance by its own rule)."""
 from setuptools import Extension, setup
 
 # no fused multiply-adds: the length test must round as numpy's float32 arithmetic does (pcdet/_graph.c), the
