@@ -82,8 +82,11 @@ def _rigid_from_covariance(H: np.ndarray, cs: np.ndarray, cd: np.ndarray, *, use
     centroids cs, cd (B, 3): the proper rotation R maximising trace(R H), and t = cd - R cs. In numpy, R = V
     diag(1, 1, d) U^T with d = sign det(V U^T), so never a reflection."""
     if use_compiled and _align is not None:
+        H = np.ascontiguousarray(H, dtype=np.float64)
+        if not np.isfinite(H).all():  # as numpy's SVD refuses them, so callers that catch LinAlgError still do
+            raise np.linalg.LinAlgError("Kabsch: the cross-covariance holds NaN or infinity")
         T = np.empty((len(H), 4, 4))
-        _align.rigid_from_covariance(*(np.ascontiguousarray(a, dtype=np.float64) for a in (H, cs, cd)), T)
+        _align.rigid_from_covariance(H, *(np.ascontiguousarray(a, dtype=np.float64) for a in (cs, cd)), T)
         return T
     U, _, Vt = np.linalg.svd(H)
     V = Vt.transpose(0, 2, 1)

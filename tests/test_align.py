@@ -91,7 +91,7 @@ def test_compiled_rotation_agrees_with_numpys_svd(rng):
     """The compiled kernel (Horn's quaternion) against numpy's SVD: rotation entries within 1e-12 on 500 random
     problems with noisy targets; on points in a plane or on a line (a repeated singular value) both fit exactly
     (residual under 1e-12 m) with det +1; on a mirrored target both reach the same trace(R H) within 1e-12 of
-    each other, with det +1."""
+    each other, with det +1; a covariance holding NaN raises LinAlgError in both."""
     from scipy.spatial.transform import Rotation
 
     src = rng.normal(size=(500, 12, 3)) * rng.uniform(0.01, 1.0, (500, 1, 1))
@@ -118,3 +118,7 @@ def test_compiled_rotation_agrees_with_numpys_svd(rng):
     Ea, Eb = (align._rigid_from_covariance(H, cs[None], cd[None], use_compiled=c)[0] for c in (True, False))
     assert np.linalg.det(Ea[:3, :3]) == pytest.approx(1.0)
     assert np.trace(Ea[:3, :3] @ H[0]) == pytest.approx(np.trace(Eb[:3, :3] @ H[0]), abs=1e-12)
+    # a covariance holding NaN is refused by both, as numpy's SVD refuses it
+    for compiled in (True, False):
+        with pytest.raises(np.linalg.LinAlgError):
+            align._rigid_from_covariance(np.full((1, 3, 3), np.nan), cs[None], cd[None], use_compiled=compiled)
