@@ -307,11 +307,11 @@ def test_with_targets_a_model_is_refined_at_other_places_than_where_it_looks_bes
 
 def test_with_targets_the_coarse_icps_reach_more_places_too(tmp_path, library):
     """Scene 5 of the six-part suite, objects given, the bracket (obj 1): its best-looking raw poses lie on other
-    objects and distractors (first looks 0.98-0.99, about 2 d from the truth), and its raw poses within 0.1 d rank
-    20th and below (0.76 and less), past the 12 coarse ICPs. With ``refine.places`` applied to the coarse ICPs only
-    as it was to the full ones (``places = 0`` turns both off), no raw pose near the truth got a coarse ICP, so none
-    got a full one, and the bracket was lost. Spread over 3 places, the coarse ICPs reach one, and the bracket is
-    found within ADD-S 0.1 d (0.017 d measured)."""
+    objects and distractors (the first three look 0.98-0.99, about 2 d from the truth), and its raw poses within
+    0.1 d rank 20th and below (0.76 and less), past the 12 coarse ICPs. Before ``refine.places`` applied to the
+    coarse ICPs as well as to the full ones, no raw pose near the truth got a coarse ICP, so none got a full one,
+    and the bracket was lost (as now with ``places = 0``, which turns both off). With the coarse ICPs spread over 3
+    places one reaches it, and the bracket is found within ADD-S 0.1 d (0.017 d measured)."""
     from pcdet.config import PipelineConfig
     from pcdet.detector import Trace
 
