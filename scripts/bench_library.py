@@ -137,7 +137,7 @@ def run(folder: Path, rec, refs, obj_id: int, pipeline: str, targets: bool = Fal
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data" / "linemod_cat")
+    ap.add_argument("--data", type=Path, default=SHARED / "linemod_cat")
     ap.add_argument("--object", type=int, default=None,
                     help="the dataset's object id (default: the one object its ground truth names)")
     ap.add_argument("--frames", type=int, default=20, help="first N frames that show the object (0: all)")

@@ -95,13 +95,8 @@ def pairs(gaps=(24, 48)) -> list[tuple[Path, Path, np.ndarray, str]]:
     ``gaps`` degrees apart (multiples of 24), then the bunny's."""
     out = []
     d = DATA / "stanford_scans"
-    if d.is_dir():
-        conf = read_conf(d / "dragonStandRight.conf")
-        for gap in gaps:
-            for a in range(0, 360, 24):
-                b = (a + gap) % 360
-                sa, sb = f"dragonStandRight_{a}.ply", f"dragonStandRight_{b}.ply"
-                out.append((d / sa, d / sb, np.linalg.inv(conf[sb]) @ conf[sa], f"dragon {a} -> {b} ({gap} deg)"))
+    if d.is_dir():  # its .conf lists the scans every 24 degrees round the turntable
+        out += scan_pairs(d, tuple(gap // 24 for gap in gaps))
     d = DATA / "bunny"
     if d.is_dir():
         conf = read_conf(d / "bun.conf")
@@ -132,7 +127,7 @@ def scan_pairs(folder: Path, steps=(1, 2)) -> list[tuple[Path, Path, np.ndarray,
                 continue
             T = np.linalg.inv(conf[b]) @ conf[a]
             angle = np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1, 1)))
-            out.append((folder / a, folder / b, T, f"{folder.name}: {a} -> {b} ({angle:.0f} deg)"))
+            out.append((folder / a, folder / b, T, f"{Path(a).stem} -> {Path(b).stem} ({angle:.0f} deg)"))
     return out
 
 
