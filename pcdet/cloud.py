@@ -75,15 +75,13 @@ def compiled() -> bool:
 def estimate_normals(points: np.ndarray, radius: float, max_nn: int = 30,
                      viewpoint: np.ndarray | None = np.zeros(3), *, kernel: bool = True) -> np.ndarray:
     """Unit normals (N, 3) from the covariance of neighbours within ``radius`` (m), at most ``max_nn``: the axis
-    of least spread; ``(0, 0, 1)`` for a point with fewer than 3 neighbours (itself included) or with all of them
-    at one place.
+    of least spread (``(0, 0, 1)`` for a point with fewer than 3 neighbours, itself included).
 
     With a ``viewpoint`` (default: the camera origin) every normal is flipped to face it. The compiled kernel
-    (``pcdet/_normals.c``, on a hashed grid of the radius, on every core) gives open3d's ``estimate_normals``
-    axes to rounding (1 - cos below 1e-12 in ``tests/test_cloud.py``, 7e-16 on real frames) wherever the least
-    spread is set apart; where the neighbours lie along a line, each takes its own axis at right angles to it.
-    It is 3-3.6 times as fast on real 640x480 frames. With ``kernel`` False, where it was not built, or where
-    the cloud is too wide for the grid's keys, open3d computes them.
+    (``pcdet/_normals.c``, on a hashed grid of the radius, on every core) computes what open3d's
+    ``estimate_normals`` computes, up to rounding (within 1e-9 where the least spread is well apart from the
+    next; ``tests/test_cloud.py``); 4-6 times faster on real frames. ``kernel`` False, where it was not built, or
+    where the cloud is too wide for the grid's keys, open3d computes them.
     """
     points = np.ascontiguousarray(points, dtype=np.float64)
     n = _normals_grid(points, radius, max_nn) if kernel and compiled() else None
