@@ -119,10 +119,10 @@ def test_a_family_is_grouped_once_and_each_size_verified_on_its_own(tmp_path, sy
 
 def test_a_scaled_copy_in_view_is_found_at_its_own_size(tmp_path):
     """A scene holding only the bracket scaled by 1.08, with the bracket and its 0.92 and 1.08 copies in the
-    library: the one detection is the 1.08 copy within 3 mm ADD-S, though grouping ran for the bracket. The scene
-    (synth seed 7) is one whose view fixes the size (the fitted scales decide, ``verify.size_margin``): there the
-    copy is kept with the detector's seeds 0-5; in other views the outline decides and prefers the smaller size
-    (seed 3: 4 of 6; seeds 5 and 9: none; docs/measurements.md)."""
+    library: the one detection is the 1.08 copy within 3 mm ADD-S, though grouping ran for the bracket. In this
+    scene (synth seed 7) the fitted scales leave the choice to the outline (``verify.size_fit``), which keeps the
+    copy with the detector's seeds 0-5; in other scenes it keeps the original bracket more often (seed 3: the copy
+    with 4 of 6 seeds; seeds 5 and 9: with none; docs/measurements.md)."""
     from pcdet.synth import SynthConfig, synthesize
 
     folder = _with_copies(tmp_path)
