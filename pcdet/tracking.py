@@ -5,13 +5,18 @@ The world frame is the first camera's. Frame by frame:
   2. on the first frame, every ``redetect_every`` frames and after a track is lost: full detection; each
      detection joins the track of the same object whose map position is within ``associate_distance`` x the
      model's diameter, or starts a new track; a detection that joins a track competes with the track's own
-     prediction refined as in 3, and the better verified pose is kept;
+     prediction refined as in 3, and the better verified pose is kept. A detection that wins and puts the
+     model elsewhere than the refined prediction (model samples a mean of ``reanchor_distance`` x the diameter
+     apart), or where the prediction could not be verified at all, replaces the track's map pose: the map was
+     wrong (a first detection of a near-symmetric part turned the wrong way round, which ICP from the map pose
+     keeps finding again);
   3. otherwise each mapped instance in view is refined by ICP from its predicted pose (map pose seen from the
      predicted camera), on the depth pixels around it only, and checked against the depth (``verify``); a score
      below ``min_score`` marks it lost;
   4. the instances seen in this frame correct the camera pose: the rigid fit of their model points as observed
-     onto the same points in the map (objects do not move, so any disagreement is camera drift). The corrected
-     pose goes back to the odometry.
+     onto the same points in the map (objects do not move, so any disagreement is camera drift). Instances whose
+     map pose is set in this frame (new tracks, replaced map poses) take no part in it; they are mapped from the
+     corrected pose. The corrected pose goes back to the odometry.
 Every track keeps its per-frame world pose estimate (corrected camera pose x observed object pose).
 
 ``track_into`` writes what detection writes (a detections JSON per frame as it is done, ``results.csv`` rebuilt
@@ -40,21 +45,26 @@ from .odometry_run import relocalise
 class TrackingConfig:
     """redetect_every: full detection every N frames besides the first and after a loss (0: only then);
     min_score: verification score a tracked pose must keep; associate_distance: x model diameter;
-    crop_margin: m of depth around a predicted object used for its ICP; odometry: camera odometry settings.
+    reanchor_distance: x model diameter, mean distance of the model samples between a better-verified detection and
+    the track's refined prediction above which the detection replaces the track's map pose (step 2 of the module
+    docstring); crop_margin: m of depth around a predicted object used for its ICP; odometry: camera odometry
+    settings.
     The default odometry is frame-to-frame ICP on a coarse grid (2 cm at 1 m), without KISS-ICP: the objects
     correct the camera every frame, so odometry only has to bring each object within ICP's reach. On a 60-frame
     recording, run back to back (``python scripts/bench_tracking.py``, then the same with
     ``OdometryConfig()``), the largest object error was 2.30 mm with it and 2.28 mm with the finer default
     odometry, at 13.5 against 6.0 tracking frames per second. That was before the odometry weighed points by
     their depth noise and before the sensor model's random stream changed the scenes; today the benchmark gives
-    2.71 mm at 13.2 frames per second. Its ICP kernel stays two grid spacings wide (``icp_kernel``; the
-    recording odometry's default is one): with one, a T-joint of ``tests/test_tracking.py``'s recording strayed
-    9.4 mm from the truth in one frame.
+    2.71 mm at 13.2 frames per second, and 2.52 mm since new and replaced map poses are mapped from the corrected
+    camera (docs/measurements.md, "A wrong map pose replaced"). Its ICP kernel stays two grid spacings wide
+    (``icp_kernel``; the recording odometry's default is one): with one, a T-joint of ``tests/test_tracking.py``'s
+    recording strayed 9.4 mm from the truth in one frame.
 """
 
     redetect_every: int = 15
     min_score: float = 0.5
     associate_distance: float = 0.25
+    reanchor_distance: float = 0.05
     crop_margin: float = 0.03
     odometry: OdometryConfig = field(default_factory=lambda: OdometryConfig(
         method="icp", icp_voxel=0.02, pixel_stride=2, keyframe_distance=0.0, keyframe_angle_deg=0.0, keyframes=1,
@@ -122,16 +132,21 @@ class Tracker:
         self.index += 1
         T_wc = self.odo.step(frame)
         due = self.cfg.redetect_every > 0 and self.index % self.cfg.redetect_every == 0
+        mapped: set[int] = set()  # ids of the tracks whose map pose this frame sets
         if self.index == 0 or due or any(t.lost for t in self.tracks):
-            obs = self._detect(frame, T_wc)
+            obs, mapped = self._detect(frame, T_wc)
             mode = "detect"
         else:
             obs = self._track(frame, T_wc)
             mode = "track"
         if obs:
-            T_wc = self._correct_camera(obs, T_wc)
+            anchored = [o for o in obs if o[0].id not in mapped]
+            if anchored:
+                T_wc = self._correct_camera(anchored, T_wc)
             self.odo.reset(T_wc)
         for tr, T_cm, score, _ in obs:
+            if tr.id in mapped:
+                tr.T_world_model = T_wc @ T_cm
             tr.frames.append(self.index)
             tr.poses.append(T_wc @ T_cm)
             tr.scores.append(score)
@@ -139,10 +154,14 @@ class Tracker:
         self.last_detections = [d for *_, d in obs]
         return T_wc, mode
 
-    def _detect(self, frame: Frame, T_wc: np.ndarray) -> list[tuple[Track, np.ndarray, float, Detection]]:
+    def _detect(self, frame: Frame, T_wc: np.ndarray
+                ) -> tuple[list[tuple[Track, np.ndarray, float, Detection]], set[int]]:
+        """Full detection (step 2 of the module docstring): the observations (track, T_cam_model, score,
+        detection) and the ids of the tracks whose map pose is to be set from this frame."""
         res = self.det.detect(frame)
         obs = []
         used: set[int] = set()
+        mapped: set[int] = set()
         T_cam_input = np.linalg.inv(frame.T_input_cam)
         T_cw = np.linalg.inv(T_wc)
         for d in res.detections:
@@ -158,17 +177,28 @@ class Tracker:
             if best is None:
                 best = Track(len(self.tracks) + 1, m.name, m.obj_id, mi, T_wm)
                 self.tracks.append(best)
+                mapped.add(best.id)
             else:  # the track's own prediction, refined, competes with the detection: the better verified wins
                 r = self.det.refine(frame, mi, T_cw @ best.T_world_model, depth_margin=self.cfg.crop_margin)
                 if r.detection is not None and r.detection.score > d.score:
                     d = r.detection
                     T_cm = T_cam_input @ d.T_cam_model
+                elif r.detection is None or self._apart(mi, r.detection.T_cam_model, d.T_cam_model):
+                    mapped.add(best.id)  # the map pose no longer holds: the detection's replaces it
             used.add(best.id)
             best.lost = False
             obs.append((best, T_cm, float(d.score), d))
         for tr in self.tracks:
             tr.lost = False  # a full detection settles every loss: missing objects simply are not in view
-        return obs
+        return obs, mapped
+
+    def _apart(self, model_index: int, A: np.ndarray, B: np.ndarray) -> bool:
+        """Whether poses A and B (4, 4) of a model put its samples a mean of more than ``reanchor_distance`` x
+        its diameter apart."""
+        pm = self.det.models[model_index]
+        p = pm.icp_points
+        gap = np.linalg.norm(transform(A, p) - transform(B, p), axis=1).mean()
+        return bool(gap > self.cfg.reanchor_distance * pm.model.diameter)
 
     def _track(self, frame: Frame, T_wc: np.ndarray) -> list[tuple[Track, np.ndarray, float, Detection]]:
         T_cw = np.linalg.inv(T_wc)
