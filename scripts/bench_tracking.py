@@ -69,7 +69,7 @@ def main():
             pos = [(W0 @ cams[r] @ rec.gt(r)[k]["T_cam_model"])[:3, 3] for r in refs]
             tr = [t for t in res.tracks if t.obj_id == g0["obj_id"]]
             if not tr:
-                print(f"| {lib.by_id(g0['obj_id']).name} | 0 | not tracked | |")
+                print(f"| {lib.by_id(g0['obj_id']).name} | 0 | not tracked | | |")
                 continue
             err = [np.linalg.norm(T[:3, 3] - pos[f]) * 1000 for f, T in zip(tr[0].frames, tr[0].poses)]
             over = [f for f, e in zip(tr[0].frames, err) if e > 5]
