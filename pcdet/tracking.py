@@ -37,6 +37,7 @@ from .detector import Detection, DetectionResult, Detector
 from .frame import Frame
 from .errors import InputError
 from .io.atomic import atomic_write_bytes, atomic_write_text
+from .metrics import add
 from .odometry import Odometry, OdometryConfig
 from .odometry_run import relocalise
 
@@ -194,11 +195,9 @@ class Tracker:
 
     def _apart(self, model_index: int, A: np.ndarray, B: np.ndarray) -> bool:
         """Whether poses A and B (4, 4) of a model put its samples a mean of more than ``reanchor_distance`` x
-        its diameter apart."""
+        its diameter apart (their ADD)."""
         pm = self.det.models[model_index]
-        p = pm.icp_points
-        gap = np.linalg.norm(transform(A, p) - transform(B, p), axis=1).mean()
-        return bool(gap > self.cfg.reanchor_distance * pm.model.diameter)
+        return add(A, B, pm.icp_points) > self.cfg.reanchor_distance * pm.model.diameter
 
     def _track(self, frame: Frame, T_wc: np.ndarray) -> list[tuple[Track, np.ndarray, float, Detection]]:
         T_cw = np.linalg.inv(T_wc)
