@@ -2,14 +2,15 @@
 ``pcdet.graph`` (common neighbours of each edge, and the length and angle tests of candidate pairs),
 ``pcdet.residuals`` (correspondences within a radius of many poses, and Tukey-weighted Kabsch sums), ``pcdet.align``
 (the rotations of many Kabsch problems), ``pcdet.grid`` (the nearest point within a short radius, on a hashed voxel
-grid) and ``pcdet.features`` (FPFH descriptors, their neighbours found on that grid). ``optional``: where no C
-compiler is at hand the install goes on without them, and pcdet computes the same results with numpy and scipy
-(FPFH with open3d, which orders neighbours at the same distance by its own rule)."""
+grid), ``pcdet.features`` (FPFH descriptors, their neighbours found on that grid) and ``pcdet.cloud`` (normals, their
+neighbours found alike). ``optional``: where no C compiler is at hand the install goes on without them, and pcdet
+computes the same results with numpy and scipy, or with open3d: FPFH (which orders neighbours at the same distance by
+its own rule) and normals (the same axes, rounded otherwise)."""
 from setuptools import Extension, setup
 
 # no fused multiply-adds: the length test must round as numpy's float32 arithmetic does (pcdet/_graph.c), the
 # residuals are summed in one stated order (pcdet/_residuals.c), and the grid's distances as the KD-tree's
 # (pcdet/_grid.c) and the FPFH pair features as open3d's (pcdet/_fpfh.c)
-setup(ext_modules=[Extension(f"pcdet.{name}", [f"pcdet/{name}.c"], depends=["pcdet/_cells.h"],
+setup(ext_modules=[Extension(f"pcdet.{name}", [f"pcdet/{name}.c"], depends=["pcdet/_cells.h", "pcdet/_near.h"],
                              extra_compile_args=["-ffp-contract=off"], optional=True)
-                   for name in ("_graph", "_residuals", "_grid", "_fpfh", "_align")])
+                   for name in ("_graph", "_residuals", "_grid", "_fpfh", "_align", "_normals")])

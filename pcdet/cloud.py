@@ -5,12 +5,18 @@ seeded generator, and clusters are numbered by their smallest point index.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
+
+try:  # the compiled kernel, where the install could build it
+    from . import _normals
+except ImportError:  # pragma: no cover - exercised where no compiler was at hand
+    _normals = None
 
 
 def voxel_keys(points: np.ndarray, voxel: float) -> np.ndarray:
@@ -59,20 +65,67 @@ def voxel_downsample(points: np.ndarray, voxel: float, normals: np.ndarray | Non
     return mean, nout, rep
 
 
+def compiled() -> bool:
+    """Whether ``estimate_normals`` runs the compiled kernel (otherwise open3d's implementation)."""
+    from . import grid
+
+    return _normals is not None and grid.compiled()
+
+
 def estimate_normals(points: np.ndarray, radius: float, max_nn: int = 30,
-                     viewpoint: np.ndarray | None = np.zeros(3)) -> np.ndarray:
-    """Unit normals (N, 3) from the covariance of neighbours within ``radius`` (m), at most ``max_nn``.
+                     viewpoint: np.ndarray | None = np.zeros(3), *, kernel: bool = True) -> np.ndarray:
+    """Unit normals (N, 3) from the covariance of neighbours within ``radius`` (m), at most ``max_nn``: the axis
+    of least spread; ``(0, 0, 1)`` for a point with fewer than 3 neighbours (itself included) or with all of them
+    at one place.
 
-    With a ``viewpoint`` (default: the camera origin) every normal is flipped to face it.
+    With a ``viewpoint`` (default: the camera origin) every normal is flipped to face it. The compiled kernel
+    (``pcdet/_normals.c``, on a hashed grid of the radius, on every core) gives open3d's ``estimate_normals``
+    axes to rounding (1 - cos below 1e-12 in ``tests/test_cloud.py``, 7e-16 on real frames) wherever the least
+    spread is set apart; where the neighbours lie along a line, each takes its own axis at right angles to it.
+    It is 3-3.6 times as fast on real 640x480 frames. With ``kernel`` False, where it was not built, or where
+    the cloud is too wide for the grid's keys, open3d computes them.
     """
-    from ._o3d import o3d
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    n = _normals_grid(points, radius, max_nn) if kernel and compiled() else None
+    if n is None:
+        from ._o3d import o3d
 
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
-    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=max_nn))
-    n = np.asarray(pc.normals).copy()
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+        pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=max_nn))
+        n = np.asarray(pc.normals).copy()
     if viewpoint is not None:
         flip = ((np.asarray(viewpoint) - points) * n).sum(axis=1) < 0
         n[flip] *= -1
+    return n
+
+
+def _normals_grid(points: np.ndarray, radius: float, max_nn: int) -> np.ndarray | None:
+    """(N, 3) normals of ``points`` (N, 3) float64 by the compiled kernel, split over the cores (each point's
+    normal depends on nothing else: any split gives the same), or None where the grid cannot hold the cloud."""
+    from .grid import CellGrid
+
+    if not 0 < radius < np.inf or max_nn < 1:
+        return None
+    g = CellGrid(points, radius * (1 + 1e-9))  # a point within radius of a query lies in the 27 cells around it
+    if not g.usable:
+        return None
+    out = np.empty((len(points), 3))
+
+    def run(part: slice) -> None:
+        _normals.normals(g.points, g.order, g.start, g.keys, g.table, g.cell, part.start, part.stop, radius * radius,
+                         int(max_nn), out[part])
+
+    cores = os.cpu_count() or 1
+    if cores > 1 and len(points) >= 4000:
+        from concurrent.futures import ThreadPoolExecutor
+
+        bounds = np.linspace(0, len(points), cores + 1).astype(int)
+        with ThreadPoolExecutor(cores) as pool:
+            list(pool.map(run, [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]))
+    else:
+        run(slice(0, len(points)))
+    n = np.empty_like(out)
+    n[g.order] = out  # the kernel works in the grid's order
     return n
 
 

@@ -110,3 +110,64 @@ def test_diameter_is_the_largest_distance_between_two_points(rng):
         brute = float(np.sqrt(((P[:, None, :] - P[None, :, :]) ** 2).sum(-1).max()))
         assert diameter(P) == brute
     assert diameter(np.ones((1, 3))) == 0.0
+
+
+def _noisy_surfaces(rng, n=6000):
+    """(n, 3) m: a noisy wavy patch and a noisy sphere 0.3 m in front of the origin (no two points at one distance)."""
+    xy = rng.uniform(-0.1, 0.1, (n // 2, 2))
+    patch = np.c_[xy, 0.5 + 0.02 * np.sin(30 * xy[:, 0]) + rng.normal(0, 0.0005, n // 2)]
+    d = rng.normal(size=(n - n // 2, 3))
+    sphere = 0.05 * d / np.linalg.norm(d, axis=1, keepdims=True) + [0.2, 0.0, 0.4]
+    return np.r_[patch, sphere]
+
+
+@pytest.mark.skipif(not __import__("pcdet.grid", fromlist=["compiled"]).compiled(), reason="kernel not built")
+def test_compiled_normals_are_open3ds_up_to_rounding(rng):
+    """On 6000 noisy surface points (radius 12 mm: 5-60 neighbours, so the cap of 30 applies to many), the compiled
+    kernel's normals and open3d's span the same axis (1 - |cos| below 1e-12) and, turned toward the camera, have the
+    same sign; with a cap larger than any neighbourhood too."""
+    from pcdet import cloud
+
+    assert cloud._normals is not None
+    pts = _noisy_surfaces(rng)
+    for max_nn in (30, 1000):
+        ours = estimate_normals(pts, 0.012, max_nn)
+        theirs = estimate_normals(pts, 0.012, max_nn, kernel=False)
+        assert np.allclose(np.linalg.norm(ours, axis=1), 1.0, atol=1e-12)
+        assert (1 - (ours * theirs).sum(axis=1)).max() < 1e-12
+
+
+@pytest.mark.skipif(not __import__("pcdet.grid", fromlist=["compiled"]).compiled(), reason="kernel not built")
+def test_compiled_normals_of_degenerate_neighbourhoods(rng):
+    """A point with fewer than 3 neighbours, or whose neighbours lie at one place, gets (0, 0, 1), as open3d gives
+    it (then turned toward the camera); neighbours along a line give a unit normal at right angles to it."""
+    lone = np.array([[0.0, 0.0, 1.0], [0.5, 0.5, 1.0], [0.505, 0.5, 1.0]])
+    same = np.repeat([[0.3, -0.2, 0.8]], 4, axis=0)
+    line = np.c_[np.linspace(0, 0.02, 5), np.zeros(5), np.full(5, 0.9)] @ np.array(
+        [[0.6, 0.8, 0.0], [-0.8, 0.6, 0.0], [0.0, 0.0, 1.0]])
+    n = estimate_normals(np.r_[lone, same, line], 0.01, 30, viewpoint=None)
+    assert np.array_equal(n[:7], np.tile([0.0, 0.0, 1.0], (7, 1)))
+    assert np.allclose(np.linalg.norm(n[7:], axis=1), 1.0)
+    assert np.abs(n[7:] @ np.array([0.6, 0.8, 0.0])).max() < 1e-9  # at right angles to the line's direction
+    assert np.array_equal(estimate_normals(lone, 0.01, 30), np.tile([0.0, 0.0, -1.0], (3, 1)))
+
+
+@pytest.mark.skipif(not __import__("pcdet.grid", fromlist=["compiled"]).compiled(), reason="kernel not built")
+def test_compiled_normals_do_not_depend_on_how_the_points_are_split(rng):
+    """The kernel's normals of any run of grid positions are those one call over all of them gives, to the bit (the
+    detector splits them over its cores)."""
+    from pcdet import _normals
+    from pcdet.grid import CellGrid
+
+    pts = _noisy_surfaces(rng, 3000)
+    g = CellGrid(pts, 0.012 * (1 + 1e-9))
+    grid = (g.points, g.order, g.start, g.keys, g.table, g.cell)
+    whole = np.empty((len(pts), 3))
+    _normals.normals(*grid, 0, len(pts), 0.012 ** 2, 30, whole)
+    for cuts in ([0, 1, 1777, 3000], [0, 1500, 1500, 2999, 3000]):
+        parts = np.empty_like(whole)
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            _normals.normals(*grid, a, b, 0.012 ** 2, 30, parts[a:b])
+        assert np.array_equal(parts, whole)
+    with pytest.raises(ValueError, match="lo <= hi"):
+        _normals.normals(*grid, 10, 5, 0.012 ** 2, 30, np.empty((0, 3)))

