@@ -139,11 +139,11 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
         overwrite: bool = typer.Option(False, help="Start over in an OUT that holds an earlier run (its frames and "
                                        "result files are removed first)."),
         track: bool = typer.Option(False, help="Track objects through the recording (full detection on the "
-                                   "first frame, every --redetect-every frames and after a loss; ICP from the "
-                                   "predicted pose between); writes results.csv, frames/ and tracks.json, and "
-                                   "resumes with --resume."),
-        redetect_every: int = typer.Option(15, help="With --track: full detection every N frames (0: only "
-                                           "when a track is lost)."),
+                                   "first frame, on the frame after a map pose was set, every --redetect-every "
+                                   "frames and after a loss; ICP from the predicted pose between); writes "
+                                   "results.csv, frames/ and tracks.json, and resumes with --resume."),
+        redetect_every: int = typer.Option(15, help="With --track: full detection every N frames (0: only on "
+                                           "the first frames, to confirm new map poses and after a loss)."),
         workers: int = typer.Option(1, help="Processes to spread frames (with --track: scenes) over; with "
                                     "--executor ray, the CPUs of a local Ray instance."),
         threads: Optional[int] = typer.Option(None, help="Detector threads when --workers is 1 (default: the "

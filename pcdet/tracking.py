@@ -2,7 +2,8 @@
 
 The world frame is the first camera's. Frame by frame:
   1. camera odometry (``odometry.Odometry``) predicts ``T_world_cam``;
-  2. on the first frame, every ``redetect_every`` frames and after a track is lost: full detection; each
+  2. on the first frame, every ``redetect_every`` frames, after a track is lost and (``confirm``) on the frame
+     after a map pose was set, so that no map pose rests on one detection alone: full detection; each
      detection joins the track of the same object whose map position is within ``associate_distance`` x the
      model's diameter, or starts a new track; a detection that joins a track competes with the track's own
      prediction refined as in 3, and the better verified pose is kept. A detection that wins and puts the
@@ -48,24 +49,28 @@ class TrackingConfig:
     min_score: verification score a tracked pose must keep; associate_distance: x model diameter;
     reanchor_distance: x model diameter, mean distance of the model samples between a better-verified detection and
     the track's refined prediction above which the detection replaces the track's map pose (step 2 of the module
-    docstring); crop_margin: m of depth around a predicted object used for its ICP; odometry: camera odometry
-    settings.
+    docstring); confirm: a full detection on the frame after a map pose was set (a new track, a replaced map pose),
+    which replaces a first detection turned the wrong way round there instead of at the next ``redetect_every``
+    (one more full detection for each frame that sets map poses); crop_margin: m of depth around a predicted object
+    used for its ICP; odometry: camera odometry settings.
     The default odometry is frame-to-frame ICP on a coarse grid (2 cm at 1 m), without KISS-ICP: the objects
     correct the camera every frame, so odometry only has to bring each object within ICP's reach. On a 60-frame
     recording, run back to back (``python scripts/bench_tracking.py``, then the same with
     ``OdometryConfig()``), the largest object error was 2.30 mm with it and 2.28 mm with the finer default
     odometry, at 13.5 against 6.0 tracking frames per second. That was before the odometry weighed points by
     their depth noise and before the sensor model's random stream changed the scenes; today the benchmark gives
-    2.71 mm at 13.2 frames per second, and 2.52 mm since new and replaced map poses are mapped from the corrected
-    camera (docs/measurements.md, "A wrong map pose replaced"). Its ICP kernel stays two grid spacings wide
-    (``icp_kernel``; the recording odometry's default is one): with one, a T-joint of ``tests/test_tracking.py``'s
-    recording strayed 9.4 mm from the truth in one frame.
+    2.71 mm at 13.2 frames per second, 2.52 mm since new and replaced map poses are mapped from the corrected
+    camera (docs/measurements.md, "A wrong map pose replaced"), and 2.38 mm with the compiled normals, with
+    ``confirm`` or without (it adds full detections in frames 1 and 16: 6 instead of 4). Its ICP kernel stays two
+    grid spacings wide (``icp_kernel``; the recording odometry's default is one): with one, a T-joint of
+    ``tests/test_tracking.py``'s recording strayed 9.4 mm from the truth in one frame.
 """
 
     redetect_every: int = 15
     min_score: float = 0.5
     associate_distance: float = 0.25
     reanchor_distance: float = 0.05
+    confirm: bool = True
     crop_margin: float = 0.03
     odometry: OdometryConfig = field(default_factory=lambda: OdometryConfig(
         method="icp", icp_voxel=0.02, pixel_stride=2, keyframe_distance=0.0, keyframe_angle_deg=0.0, keyframes=1,
@@ -127,6 +132,7 @@ class Tracker:
         self.tracks: list[Track] = []
         self.index = -1
         self.last_detections: list[Detection] = []
+        self._unconfirmed = False  # a map pose was set from one detection in the last frame
 
     def step(self, frame: Frame) -> tuple[np.ndarray, str]:
         """Process the next frame: returns (corrected T_world_cam, "detect" or "track")."""
@@ -134,7 +140,7 @@ class Tracker:
         T_wc = self.odo.step(frame)
         due = self.cfg.redetect_every > 0 and self.index % self.cfg.redetect_every == 0
         mapped: set[int] = set()  # ids of the tracks whose map pose this frame sets
-        if self.index == 0 or due or any(t.lost for t in self.tracks):
+        if self.index == 0 or due or self._unconfirmed or any(t.lost for t in self.tracks):
             obs, mapped = self._detect(frame, T_wc)
             mode = "detect"
         else:
@@ -153,6 +159,7 @@ class Tracker:
             tr.scores.append(score)
             tr.modes.append(mode)
         self.last_detections = [d for *_, d in obs]
+        self._unconfirmed = self.cfg.confirm and bool(mapped)
         return T_wc, mode
 
     def _detect(self, frame: Frame, T_wc: np.ndarray
@@ -264,24 +271,25 @@ class Tracker:
         return res
 
     def state(self, result: TrackingResult) -> bytes:
-        """The tracker's state (odometry, tracks, frame index) and ``result`` so far, as bytes for
-        ``restore``; the detector is not part of it. KISS-ICP's state cannot be saved, so trackers whose odometry
-        uses it cannot checkpoint."""
+        """The tracker's state (odometry, tracks, frame index, whether a detection is due to confirm map poses)
+        and ``result`` so far, as bytes for ``restore``; the detector is not part of it. KISS-ICP's state cannot be
+        saved, so trackers whose odometry uses it cannot checkpoint."""
         import pickle
 
         if self.odo.kiss is not None:
             raise InputError("tracking with KISS-ICP odometry cannot be checkpointed (its state cannot be saved); "
                              "use odometry method 'icp'")
-        return pickle.dumps({"odo": self.odo, "tracks": self.tracks, "index": self.index, "result": result},
-                            protocol=4)
+        return pickle.dumps({"odo": self.odo, "tracks": self.tracks, "index": self.index, "result": result,
+                             "unconfirmed": self._unconfirmed}, protocol=4)
 
     def restore(self, state: bytes) -> TrackingResult:
-        """Continue from ``state(result)``: odometry, tracks and frame index as they were; returns the result so
-        far, to hand to ``run``."""
+        """Continue from ``state(result)``: odometry, tracks, frame index and a confirming detection due, as they
+        were; returns the result so far, to hand to ``run``."""
         import pickle
 
         d = pickle.loads(state)
         self.odo, self.tracks, self.index = d["odo"], d["tracks"], d["index"]
+        self._unconfirmed = d.get("unconfirmed", False)
         return d["result"]
 
 
