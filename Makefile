@@ -16,7 +16,8 @@ sysdeps:
 	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null; \
 	fi
 
-$(STAMP): pyproject.toml setup.py pcdet/_graph.c pcdet/_residuals.c pcdet/_grid.c pcdet/_fpfh.c pcdet/_align.c pcdet/_cells.h
+$(STAMP): pyproject.toml setup.py pcdet/_graph.c pcdet/_residuals.c pcdet/_grid.c pcdet/_fpfh.c pcdet/_align.c \
+		pcdet/_normals.c pcdet/_cells.h pcdet/_near.h
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[dev]'
