@@ -73,7 +73,8 @@ def compiled() -> bool:
 
 
 def estimate_normals(points: np.ndarray, radius: float, max_nn: int = 30,
-                     viewpoint: np.ndarray | None = np.zeros(3), *, kernel: bool = True) -> np.ndarray:
+                     viewpoint: np.ndarray | None = np.zeros(3), *, kernel: bool = True, workers: int = 0
+                     ) -> np.ndarray:
     """Unit normals (N, 3) from the covariance of neighbours within ``radius`` (m), at most ``max_nn``: the axis
     of least spread; ``(0, 0, 1)`` for a point with fewer than 3 neighbours (itself included) or with all of them
     at one place.
@@ -82,11 +83,12 @@ def estimate_normals(points: np.ndarray, radius: float, max_nn: int = 30,
     (``pcdet/_normals.c``, on a hashed grid of the radius, on every core) gives open3d's ``estimate_normals``
     axes to rounding (1 - cos below 1e-12 in ``tests/test_cloud.py``, 7e-16 on real frames) wherever the least
     spread is set apart; where the neighbours lie along a line, each takes its own axis at right angles to it.
-    It is 3-3.6 times as fast on real 640x480 frames. With ``kernel`` False, where it was not built, or where
-    the cloud is too wide for the grid's keys, open3d computes them.
+    It is 3-3.6 times as fast on real 640x480 frames, on ``workers`` threads (0: every core; each normal depends
+    on nothing else, so any number gives the same). With ``kernel`` False, where it was not built, or where the
+    cloud is too wide for the grid's keys, open3d computes them.
     """
     points = np.ascontiguousarray(points, dtype=np.float64)
-    n = _normals_grid(points, radius, max_nn) if kernel and compiled() else None
+    n = _normals_grid(points, radius, max_nn, workers) if kernel and compiled() else None
     if n is None:
         from ._o3d import o3d
 
@@ -99,9 +101,10 @@ def estimate_normals(points: np.ndarray, radius: float, max_nn: int = 30,
     return n
 
 
-def _normals_grid(points: np.ndarray, radius: float, max_nn: int) -> np.ndarray | None:
-    """(N, 3) normals of ``points`` (N, 3) float64 by the compiled kernel, split over the cores (each point's
-    normal depends on nothing else: any split gives the same), or None where the grid cannot hold the cloud."""
+def _normals_grid(points: np.ndarray, radius: float, max_nn: int, workers: int = 0) -> np.ndarray | None:
+    """(N, 3) normals of ``points`` (N, 3) float64 by the compiled kernel, split over ``workers`` threads (0: every
+    core; each point's normal depends on nothing else: any split gives the same), or None where the grid cannot
+    hold the cloud."""
     from .grid import CellGrid
 
     if not 0 < radius < np.inf or max_nn < 1:
@@ -115,7 +118,7 @@ def _normals_grid(points: np.ndarray, radius: float, max_nn: int) -> np.ndarray 
         _normals.normals(g.points, g.order, g.start, g.keys, g.table, g.cell, part.start, part.stop, radius * radius,
                          int(max_nn), out[part])
 
-    cores = os.cpu_count() or 1
+    cores = workers if workers > 0 else (os.cpu_count() or 1)
     if cores > 1 and len(points) >= 4000:
         from concurrent.futures import ThreadPoolExecutor
 

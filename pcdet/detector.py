@@ -298,7 +298,7 @@ class Detector:
         grouped = self.grouped(models)
         with tm("preprocess"):
             size = max((pm.model.diameter for pm in models), default=0.3)
-            cloud = preprocess(frame, cfg.preprocess, cfg.seed, model_size=size)
+            cloud = preprocess(frame, cfg.preprocess, cfg.seed, model_size=size, workers=self.workers)
         with tm("keypoints"):
             levels = None
             if cfg.keypoints.method == "voxel":
@@ -737,7 +737,7 @@ class Detector:
             return Refinement(True)
         S, _, _ = voxel_downsample(cam.backproject_pixels(pix[keep], z[keep]), cfg.preprocess.voxel,
                                    representatives=False)
-        N = estimate_normals(S, cfg.preprocess.normal_radius, cfg.preprocess.normal_max_nn)
+        N = estimate_normals(S, cfg.preprocess.normal_radius, cfg.preprocess.normal_max_nn, workers=self.workers)
         reg = self._icp(self.models[model_index], S, N, T_cam_model)
         ver = self._verify(frame, None, model_index, reg.T_target_source, stride=2)
         return Refinement(True, self._detection(frame, model_index, reg, ver, reg.n_inliers, 0))

@@ -64,11 +64,13 @@ class SceneCloud:
     n_input: int
 
 
-def preprocess(frame: Frame, cfg: PreprocessConfig, seed: int = 0, *, model_size: float = 0.3) -> SceneCloud:
+def preprocess(frame: Frame, cfg: PreprocessConfig, seed: int = 0, *, model_size: float = 0.3,
+               workers: int = 0) -> SceneCloud:
     """The frame's ``SceneCloud``: points in the depth range on a voxel grid, the supporting plane and what lies
     beyond it removed (with ``cfg.support``, also everything that does not stand on it), small clusters
     dropped, normals toward the camera. ``seed`` drives the plane RANSAC; ``model_size`` (m, the largest
-    diameter searched for) sets the height kept above the support when ``cfg.max_height`` is 0."""
+    diameter searched for) sets the height kept above the support when ``cfg.max_height`` is 0; ``workers``:
+    threads of the normals (0: every core; the same result on any number)."""
     pts, _ = frame.points()
     n_input = len(pts)
     src = frame.info.get("source")
@@ -89,7 +91,8 @@ def preprocess(frame: Frame, cfg: PreprocessConfig, seed: int = 0, *, model_size
             pts = pts[keep]
     labels = euclidean_clusters(pts, cfg.cluster_tolerance, cfg.min_cluster_points)
     pts, labels = pts[labels >= 0], labels[labels >= 0]
-    normals = estimate_normals(pts, cfg.normal_radius, cfg.normal_max_nn) if len(pts) >= 3 else np.zeros((0, 3))
+    normals = (estimate_normals(pts, cfg.normal_radius, cfg.normal_max_nn, workers=workers) if len(pts) >= 3
+               else np.zeros((0, 3)))
     return SceneCloud(pts, normals, labels, plane, n_input)
 
 

@@ -171,3 +171,12 @@ def test_compiled_normals_do_not_depend_on_how_the_points_are_split(rng):
         assert np.array_equal(parts, whole)
     with pytest.raises(ValueError, match="lo <= hi"):
         _normals.normals(*grid, 10, 5, 0.012 ** 2, 30, np.empty((0, 3)))
+
+
+def test_normals_are_the_same_on_any_number_of_threads(rng):
+    """``estimate_normals(..., workers=n)`` gives, to the bit, what one thread gives (above 4000 points the kernel
+    splits the points over the threads)."""
+    pts = _noisy_surfaces(rng, 6000)
+    one = estimate_normals(pts, 0.012, 30, workers=1)
+    for n in (2, 3, 0):
+        assert np.array_equal(estimate_normals(pts, 0.012, 30, workers=n), one)
