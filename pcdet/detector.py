@@ -324,11 +324,12 @@ class Detector:
         return Scene(cloud.points, cloud.normals, cloud.labels, cloud.plane, kp, feats,
                      lrf_radius=cfg.features.lrf_support, colours=colours, workers=self.workers, levels=levels)
 
-    def _hypotheses(self, scene: Scene, models: list[PreparedModel], tm: _Timer, trace: Trace | None = None
-                    ) -> list[Hypothesis]:
+    def _hypotheses(self, scene: Scene, models: list[PreparedModel], tm: _Timer, trace: Trace | None = None, *,
+                    given: bool = False) -> list[Hypothesis]:
         """Match the scene's keypoints against each model (or, with ``matching.library_pool``, against one index
         over all of them) and group the candidates into pose hypotheses, one model per thread, each with its own
-        generator (so neither order nor threads change the result)."""
+        generator (so neither order nor threads change the result). ``given``: the models were named as targets
+        (they are in view), so the keypoints each groups are chosen by ``grouping.distinct`` too."""
         cfg = self.config
         seeds = np.random.SeedSequence(cfg.seed).spawn(len(self.library))
         spacing = self.keypoint_spacing(models) if cfg.keypoints.method == "voxel" else cfg.keypoints.spacing
@@ -339,7 +340,12 @@ class Detector:
             return scene.keypoints_at(self.grid_step(pm), min_step=spacing)
 
         chosen: dict[int, np.ndarray] = {}  # per model: the view's rows it groups, when matching chose them
+        gc = cfg.grouping
         with tm("matching"):
+            # with targets, keypoints unlike the rest of the scene come first (grouping.distinct), where the bound
+            # can bite
+            bound = 0 < gc.max_keypoints < len(scene.keypoints)
+            spread = scene.spread(gc.distinct, mc.screen_eps) if given and gc.distinct > 0 and bound else None
             if len(models) > 1 and mc.library_pool > 0 and mc.ratio >= 1 and not mc.mutual:
                 # one search over the library: a model gets candidates only where the scene resembles it
                 found = match_library(scene.descriptors, self._library_index(models), mc, workers=self.workers,
@@ -357,8 +363,9 @@ class Detector:
                     if mc.mutual:
                         found = match_features(scene.descriptors[rows], pm.model.features, mc, **kw)
                     else:  # the keypoints within grouping.max_keypoints are chosen here (on the view's rows)
-                        found, chosen[pm.index] = match_bounded(scene.descriptors[rows], pm.model.features, mc,
-                                                                cfg.grouping.max_keypoints, **kw)
+                        found, chosen[pm.index] = match_bounded(
+                            scene.descriptors[rows], pm.model.features, mc, gc.max_keypoints,
+                            spread=None if spread is None else spread[rows], **kw)
                     cands[pm.index] = found.placed(rows, len(scene.keypoints))
         if self.grouper.needs_lrfs:
             with tm("lrf"):  # only keypoints with a candidate take part in grouping
@@ -375,8 +382,9 @@ class Detector:
                 rows = cands[pm.index].rows(view.index)
                 has = chosen.get(pm.index)
                 if has is None:  # mutual or library matching: the bound is applied here, as match_bounded does
-                    cap = cfg.grouping.max_keypoints
-                    has = rows.nearest_rows(cap) if cap else (rows.model >= 0).any(axis=1)
+                    cap = gc.max_keypoints
+                    has = (rows.nearest_rows(cap, None if spread is None else spread[view.index]) if cap
+                           else (rows.model >= 0).any(axis=1))
                 if not has.all():  # keypoints left without a candidate (by colour) take no part in grouping
                     view, rows = view.subset(has), Candidates(rows.model[has], rows.distance[has])
                 if trace is not None:
@@ -604,7 +612,7 @@ class Detector:
         spots = None if targets is None else {pm.index: targets[pm.model.obj_id] for pm in models}
         scene = self.scene(frame, tm, models)
         stats = {"scene_points": len(scene.points), "scene_keypoints": len(scene.keypoints)}
-        raw = self._hypotheses(scene, self.grouped(models), tm, trace)
+        raw = self._hypotheses(scene, self.grouped(models), tm, trace, given=targets is not None)
         # a look-alike takes its representative's raw poses
         hyps, source = self._look_alike_hypotheses(raw, {pm.index for pm in models})
         stats["hypotheses"] = len(hyps)

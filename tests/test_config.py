@@ -51,6 +51,7 @@ def test_dump_roundtrip(tmp_path):
     ("[verify]\nmin_score = true\n", "verify.min_score = True: expected a number"),
     ("grouping = 3\n", "[grouping] must be a table"),
     ("[matching]\nscreen_eps = -1\n", "MatchingConfig.screen_eps must be >= 0"),
+    ("[grouping]\ndistinct = -1\n", "GroupingConfig.distinct must be >= 0"),
     ("[refine]\nplaces = -1\n", "RefineConfig.places must be >= 0"),
     ("[refine]\nretry_places = -1\n", "RefineConfig.retry_places must be >= 0"),
 ])

@@ -89,6 +89,28 @@ def test_grouping_sees_at_most_max_keypoints_per_model(synth_small, library):
     assert max(seen[0]) > 40 and max(seen[40]) == 40, seen
 
 
+def test_distinct_keypoints_are_preferred_with_targets_only(synth_small, library):
+    """``grouping.distinct`` ranks the keypoints a model groups by candidate distance over their spread in the
+    scene (``Scene.spread``), with targets only: there the grouped keypoints differ from the plain ranking's;
+    without targets the detector groups the same keypoints and gives the same detections with it as without."""
+    from pcdet.detector import Trace
+
+    ds = BopDataset(synth_small)
+    img = ds.images[0]
+    f = ds.frame(img)
+    grouped, found = {}, {}
+    for distinct in (0, 32):
+        det = Detector(library, PipelineConfig(seed=4).replace(grouping={"max_keypoints": 40, "distinct": distinct}),
+                       workers=1)
+        for targets in (ds.targets(img), None):
+            tr = Trace()
+            res = det.detect(f, targets, trace=tr)
+            grouped[distinct, targets is None] = {m: v.tolist() for m, v in tr.grouped.items()}
+            found[distinct, targets is None] = [(d.obj_id, d.T_cam_model.tolist()) for d in res.detections]
+    assert grouped[0, False] != grouped[32, False]
+    assert grouped[0, True] == grouped[32, True] and found[0, True] == found[32, True]
+
+
 def test_same_result_twice(synth_small, library):
     ds = BopDataset(synth_small)
     f = ds.frame(ds.images[0])

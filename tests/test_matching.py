@@ -145,6 +145,47 @@ def test_nearest_rows_keeps_the_keypoints_whose_candidates_are_nearest():
     assert list(np.flatnonzero(c.nearest_rows(10))) == [0, 1, 3, 4]
 
 
+def test_nearest_rows_divided_by_the_spread_prefer_keypoints_unlike_the_scene():
+    """With ``spread`` (each row's distance to the rest of the scene in FPFH space) the rows are ranked by mean
+    candidate distance / spread: a row a little farther from the model but far from every other scene keypoint
+    comes before one near the model that looks like much of the scene."""
+    model = np.array([[0, 1], [2, 3], [4, 5]])
+    distance = np.array([[1.0, 1.0], [1.2, 1.2], [2.0, 2.0]])
+    c = Candidates(model, distance)
+    assert list(np.flatnonzero(c.nearest_rows(1))) == [0]
+    spread = np.array([0.5, 3.0, 1.0])  # ratios 2.0, 0.4, 2.0
+    assert list(np.flatnonzero(c.nearest_rows(1, spread))) == [1]
+    assert list(np.flatnonzero(c.nearest_rows(2, spread))) == [0, 1]  # row 0 before row 2 at the same ratio
+
+
+def test_scene_spread_is_the_kth_nearest_among_a_sample_of_the_scene(rng):
+    """``Scene.spread(k, eps)``: each keypoint's distance to its (k // (k // 8))-th nearest other keypoint among
+    every (k // 8)-th one (FPFH space); exact at eps 0 (checked against brute force, 1e-6 relative: float32
+    descriptors), within (1 + eps) of it otherwise, and the same on any number of threads. A descriptor far from
+    the others has the largest spread."""
+    from scipy.spatial.distance import cdist
+
+    from pcdet.scene import Scene
+
+    desc = rng.random((600, 33)).astype(np.float32)
+    desc[7] += 5.0  # unlike the rest
+
+    def scene(workers=1):
+        return Scene(np.zeros((600, 3)), np.zeros((600, 3)), np.zeros(600, np.int64), None, np.arange(600), desc,
+                     lrf_radius=0.02, workers=workers)
+
+    sample = np.arange(0, 600, 4)  # k 32: every 4th keypoint, the 8th nearest of those
+    d = cdist(desc.astype(np.float64), desc[sample].astype(np.float64))
+    d[sample, np.arange(len(sample))] = np.inf  # a sampled keypoint is not its own neighbour
+    truth = np.sort(d, axis=1)[:, 7]
+    exact = scene().spread(32, 0.0)
+    np.testing.assert_allclose(exact, truth, rtol=1e-6)
+    approx = scene().spread(32, 2.0)
+    assert (approx >= exact * (1 - 1e-6)).all() and (approx <= 3.0 * exact * (1 + 1e-6)).all()
+    np.testing.assert_array_equal(scene(workers=3).spread(32, 2.0), approx)
+    assert int(np.argmax(exact)) == 7
+
+
 def test_bounded_matching_chooses_on_the_coarse_search_and_matches_the_chosen_again(rng):
     """``match_bounded`` keeps at most ``keep`` rows. With ``screen_eps`` they are the ``keep`` nearest on the
     coarser search, and each chosen row's candidates are exactly those the ``eps`` search gives it alone; the

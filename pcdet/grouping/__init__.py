@@ -58,6 +58,11 @@ class GroupingCommon:
     grid_per_diameter: float = param(12.0, "scene keypoints used for grouping are at least diameter / this apart")
     max_keypoints: int = param(1500, "scene keypoints each model groups at most: those whose candidates are nearest in "
                                   "FPFH space, on the matching.screen_eps search (0: all)")
+    distinct: int = param(32, "with targets and max_keypoints: a keypoint's candidates' distance is divided by its "
+                             "distance to its this-many-th nearest scene keypoint in FPFH space before the nearest "
+                             "are chosen, so that keypoints like much of the scene (walls, table tops) give way to "
+                             "unusual ones (0: the distance alone, as always without targets: there unusual "
+                             "clutter gave false detections)")
     look_alike: float = param(0.003, "m; models of one shape at other sizes (each centred on its bounding box in "
                                      "its own frame, their samples this close on average at the smaller one's size, "
                                      "sizes under 1.25 times apart) are grouped once, for the family's middle-sized "
@@ -71,6 +76,8 @@ class GroupingCommon:
         check_positive(self, "inlier_distance", "min_inliers", "grid_per_diameter")
         if self.max_keypoints < 0:
             raise ConfigError(f"GroupingConfig.max_keypoints must be >= 0, got {self.max_keypoints}")
+        if self.distinct < 0:
+            raise ConfigError(f"GroupingConfig.distinct must be >= 0 (0: off), got {self.distinct}")
         if self.look_alike < 0:
             raise ConfigError(f"GroupingConfig.look_alike must be >= 0 (0: off), got {self.look_alike}")
 
