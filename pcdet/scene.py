@@ -135,17 +135,20 @@ class Scene:
 
     def spread(self, k: int, eps: float) -> np.ndarray:
         """(K,) each keypoint's FPFH distance to about its ``k``-th nearest other keypoint of the scene: how unlike
-        the rest of the scene it looks. Searched among every ``k // 8``-th keypoint for the ``k // (k // 8)``-th
-        nearest of those, approximately (KD-tree search within ``1 + eps`` of the true distance, deterministic):
-        on real frames of 5,000-31,000 keypoints, at ``k`` 32 and ``eps`` 2, a ninth to a quarter of the work of
-        the search among all at eps 0.5, to a correlation of 0.99 with it. Computed once per ``(k, eps)``."""
+        the rest of the scene it looks. Searched among every ``step``-th keypoint (``step = k // SPREAD_NEIGHBOURS``,
+        at least 1) for the ``k // step``-th nearest of those, approximately (KD-tree search, each distance within
+        ``1 + eps`` of the true one, deterministic). Measured on real frames at ``k`` 32: among every 4th keypoint at
+        eps 0.5, a quarter of the time of the search among all (0.016-0.032 s against 0.040-0.123 s on 4,800-8,800
+        keypoints), at eps 2 less than half of that again (0.09 against 0.22 s on 31,000), each to a correlation of
+        0.99 with the search among all. All ones (no keypoint preferred) when the scene has too few keypoints.
+        Computed once per ``(k, eps)``."""
         def compute() -> np.ndarray:
             d = self.descriptors
             step = max(1, k // SPREAD_NEIGHBOURS)
             rank = max(1, k // step)
             sample = d[::step]
             if len(sample) <= rank:
-                return np.full(len(d), np.inf)
+                return np.ones(len(d))
             dist, _ = cKDTree(sample).query(d, k=rank + 1, eps=eps, workers=self.workers)
             # a sampled keypoint finds itself first: its rank-th other neighbour is one column on
             own = np.arange(len(d)) % step == 0

@@ -184,6 +184,9 @@ def test_scene_spread_is_the_kth_nearest_among_a_sample_of_the_scene(rng):
     assert (approx >= exact * (1 - 1e-6)).all() and (approx <= 3.0 * exact * (1 + 1e-6)).all()
     np.testing.assert_array_equal(scene(workers=3).spread(32, 2.0), approx)
     assert int(np.argmax(exact)) == 7
+    few = Scene(np.zeros((20, 3)), np.zeros((20, 3)), np.zeros(20, np.int64), None, np.arange(20), desc[:20],
+                lrf_radius=0.02)
+    np.testing.assert_array_equal(few.spread(32, 2.0), np.ones(20))  # 5 sampled keypoints: none is preferred
 
 
 def test_bounded_matching_chooses_on_the_coarse_search_and_matches_the_chosen_again(rng):
