@@ -53,6 +53,14 @@ static inline int grid_ok(int64_t pts_len, const int64_t *order, int64_t order_l
     return 1;
 }
 
+static inline double dot3(const double *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
+static inline void cross3(const double *a, const double *b, double *out) {
+    out[0] = a[1] * b[2] - a[2] * b[1];
+    out[1] = a[2] * b[0] - a[0] * b[2];
+    out[2] = a[0] * b[1] - a[1] * b[0];
+}
+
 /* |p - s|^2, summed from left to right (the kernels are compiled without fused multiply-adds): as the KD-tree
  * sums it */
 static inline double dist2(const double *p, const double *s) {

@@ -34,22 +34,14 @@
 
 #include "_near.h"
 
-static inline double dot(const double *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-
-static inline void cross(const double *a, const double *b, double *out) {
-    out[0] = a[1] * b[2] - a[2] * b[1];
-    out[1] = a[2] * b[0] - a[0] * b[2];
-    out[2] = a[0] * b[1] - a[1] * b[0];
-}
-
 /* the pair's features as open3d's ComputePairFeatures gives them (all 0 where the points coincide or the frame is
  * degenerate): f[1] phi, f[2] theta, and alpha = atan2(f[0], f[3]) (left to alpha_bin) */
 static void pair_features(const double *p1, const double *n1, const double *p2, const double *n2, double *f) {
     double d[3] = {p2[0] - p1[0], p2[1] - p1[1], p2[2] - p1[2]};
-    double len = sqrt(dot(d, d));
+    double len = sqrt(dot3(d, d));
     f[0] = f[1] = f[2] = f[3] = 0.0;
     if (len == 0.0) return;
-    double a1 = dot(n1, d) / len, a2 = dot(n2, d) / len;
+    double a1 = dot3(n1, d) / len, a2 = dot3(n2, d) / len;
     /* the end whose normal makes the smaller angle with the line between them is the source (the header) */
     int swap = fabs(a1) < fabs(a2);
     const double *u = n1, *w2 = n2;
@@ -64,8 +56,8 @@ static void pair_features(const double *p1, const double *n1, const double *p2, 
         f[2] = a1;
     }
     double v[3], w[3];
-    cross(d, u, v);
-    double vn = sqrt(dot(v, v));
+    cross3(d, u, v);
+    double vn = sqrt(dot3(v, v));
     if (vn == 0.0) {
         f[2] = 0.0;
         return;
@@ -74,10 +66,10 @@ static void pair_features(const double *p1, const double *n1, const double *p2, 
     v[0] *= inv;
     v[1] *= inv;
     v[2] *= inv;
-    cross(u, v, w);
-    f[1] = dot(v, w2);
-    f[0] = dot(w, w2);
-    f[3] = dot(u, w2);
+    cross3(u, v, w);
+    f[1] = dot3(v, w2);
+    f[0] = dot3(w, w2);
+    f[3] = dot3(u, w2);
 }
 
 /* floor(b) clamped to 0..10; (int) truncates towards 0, which differs from floor only below 0, clamped alike */

@@ -19,14 +19,6 @@
 
 #include "_near.h"
 
-static inline void cross3(const double *a, const double *b, double *out) {
-    out[0] = a[1] * b[2] - a[2] * b[1];
-    out[1] = a[2] * b[0] - a[0] * b[2];
-    out[2] = a[0] * b[1] - a[1] * b[0];
-}
-
-static inline double dot3(const double *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-
 /* The unit eigenvector v of the smallest eigenvalue of the symmetric 3x3 matrix with entries m = (xx, xy, xz, yy, yz,
  * zz). The eigenvalue from the trigonometric solution of the characteristic cubic (about the mean of the diagonal,
  * scaled), the vector as the largest cross product of two rows of A - lambda I, which span the plane it is normal

@@ -5,7 +5,6 @@ seeded generator, and clusters are numbered by their smallest point index.
 """
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -105,7 +104,7 @@ def _normals_grid(points: np.ndarray, radius: float, max_nn: int, workers: int =
     """(N, 3) normals of ``points`` (N, 3) float64 by the compiled kernel, split over ``workers`` threads (0: every
     core; each point's normal depends on nothing else: any split gives the same), or None where the grid cannot
     hold the cloud."""
-    from .grid import CellGrid
+    from .grid import CellGrid, over_threads
 
     if not 0 < radius < np.inf or max_nn < 1:
         return None
@@ -114,19 +113,12 @@ def _normals_grid(points: np.ndarray, radius: float, max_nn: int, workers: int =
         return None
     out = np.empty((len(points), 3))
 
-    def run(part: slice) -> None:
-        _normals.normals(g.points, g.order, g.start, g.keys, g.table, g.cell, part.start, part.stop, radius * radius,
-                         int(max_nn), out[part])
+    def run(part: np.ndarray) -> None:  # a contiguous run of grid positions
+        lo, hi = (int(part[0]), int(part[-1]) + 1) if len(part) else (0, 0)
+        _normals.normals(g.points, g.order, g.start, g.keys, g.table, g.cell, lo, hi, radius * radius, int(max_nn),
+                         out[lo:hi])
 
-    cores = workers if workers > 0 else (os.cpu_count() or 1)
-    if cores > 1 and len(points) >= 4000:
-        from concurrent.futures import ThreadPoolExecutor
-
-        bounds = np.linspace(0, len(points), cores + 1).astype(int)
-        with ThreadPoolExecutor(cores) as pool:
-            list(pool.map(run, [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]))
-    else:
-        run(slice(0, len(points)))
+    over_threads(run, np.arange(len(points)), workers, 4000)
     n = np.empty_like(out)
     n[g.order] = out  # the kernel works in the grid's order
     return n

@@ -6,7 +6,6 @@ where the kernel was not built, or the cloud is too wide for the grid's keys, op
 """
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -99,7 +98,7 @@ def _fpfh_grid(points: np.ndarray, normals: np.ndarray, uniq: np.ndarray, cfg: F
     """(K, 33) float32 FPFH of ``points[uniq]`` by the compiled kernel, or None where the grid cannot hold the
     cloud. Three passes, each split over ``workers`` threads: the points within reach of the keypoints, their
     SPFH histograms, and the keypoints' FPFH."""
-    from .grid import CellGrid
+    from .grid import CellGrid, over_threads
 
     r = float(cfg.radius)
     g = CellGrid(points, r * (1 + 1e-9))  # a point within r of a query lies in the 27 cells around the query's
@@ -107,16 +106,9 @@ def _fpfh_grid(points: np.ndarray, normals: np.ndarray, uniq: np.ndarray, cfg: F
         return None
     grid = (g.points, g.order, g.start, g.keys, g.table, g.cell)
     r2, nn = r * r, int(cfg.max_nn)
-    n = max(1, workers if workers > 0 else (os.cpu_count() or 1))
 
     def split(fn, items: np.ndarray) -> list:
-        parts = [p for p in np.array_split(items, n) if len(p)] if n > 1 and len(items) >= 2000 else [items]
-        if len(parts) == 1:
-            return [fn(items)]
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(len(parts)) as pool:
-            return list(pool.map(fn, parts))
+        return over_threads(fn, items, workers, 2000)
 
     def reach(which):
         mark = np.zeros(len(points), np.uint8)
