@@ -37,9 +37,9 @@ _REACH = 1 << 20  # cells per axis either side of 0 that a packed key holds
 
 
 def over_threads(fn, items: np.ndarray, workers: int, min_items: int) -> list:
-    """``[fn(part) for part in parts]``: ``items`` (an array) split into one contiguous part per thread
-    (``workers``; 0 or less: every core) and ``fn`` run on the parts at once, or ``[fn(items)]`` on one thread
-    where there are fewer than ``min_items`` items. For the grid kernels, which release the interpreter lock and
+    """``[fn(part) for part in parts]``: ``items`` (an array) split along its first axis into one contiguous part per
+    thread (``workers``; 0 or less: every core) and ``fn`` run on the parts at once, or ``[fn(items)]`` on one
+    thread where there are fewer than ``min_items`` items. For the grid kernels, which release the interpreter lock and
     answer each item alone: the results, in order, are the same for any number of threads."""
     n = workers if workers > 0 else (os.cpu_count() or 1)
     parts = [p for p in np.array_split(items, n) if len(p)] if n > 1 and len(items) >= min_items else []
@@ -144,9 +144,10 @@ class GridTree(cKDTree):
         if g is None:
             return super().query(x, k=k, eps=eps, p=p, distance_upper_bound=distance_upper_bound, workers=workers)
         r2 = r ** 2
-        # workers -1: every core, as for cKDTree
-        found = over_threads(lambda s: g.nearest(x[s], r2), np.arange(len(x)), workers, 20000)
-        d2, j = np.concatenate([f[0] for f in found]), np.concatenate([f[1] for f in found])
+        # the queries (Q, 3) split by rows; workers -1: every core, as for cKDTree
+        found = over_threads(lambda part: g.nearest(part, r2), x, workers, 20000)
+        d2, j = found[0] if len(found) == 1 else (np.concatenate([f[0] for f in found]),
+                                                  np.concatenate([f[1] for f in found]))
         return np.sqrt(d2), np.where(j >= 0, j, self.n)
 
     def within(self, x: np.ndarray, r: float) -> np.ndarray:
