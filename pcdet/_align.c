@@ -9,6 +9,11 @@
  * det) U^T), without a reflection; where the largest eigenvalue is repeated (points on a line, or none) any of its
  * rotations is optimal, and the first of the equal eigenvalues is taken. The interpreter lock is released while it
  * works: numpy's batched SVD holds it, so grouping on several threads queued behind it.
+ *
+ * distinct(T, order, cos_min, near2, limit, kept) -> n: greedily, the entries of ``order`` (int64 indices into T
+ * (B, 4, 4) float64) whose pose is not near any kept before it, in order, until ``limit`` are kept; they are
+ * written to ``kept`` (int64, room for min(limit, len(order))). Near: (trace(Ra^T Rb) - 1) / 2 > cos_min and
+ * |ta - tb|^2 < near2. The lock is released while it works.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -105,7 +110,55 @@ done:
     return result;
 }
 
+static int near_pose(const double *a, const double *b, double cos_min, double near2) {
+    double dx = a[3] - b[3], dy = a[7] - b[7], dz = a[11] - b[11];
+    if (dx * dx + dy * dy + dz * dz >= near2) return 0;
+    double tr = 0; /* trace(Ra^T Rb): the sum of the entries' products, row by row */
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) tr += a[4 * i + j] * b[4 * i + j];
+    return (tr - 1) / 2 > cos_min;
+}
+
+static PyObject *distinct(PyObject *self, PyObject *args) {
+    Py_buffer Tb, Ob, Kb;
+    double cos_min, near2;
+    Py_ssize_t limit;
+    if (!PyArg_ParseTuple(args, "y*y*ddnw*", &Tb, &Ob, &cos_min, &near2, &limit, &Kb)) return NULL;
+    PyObject *result = NULL;
+    int64_t B = Tb.len / (16 * 8), n = Ob.len / 8;
+    int64_t room = n < limit ? n : (int64_t)limit;
+    if (Tb.len != B * 16 * 8 || Ob.len != n * 8 || Kb.len < (room > 0 ? room : 0) * 8) {
+        PyErr_SetString(PyExc_ValueError, "distinct: T (B, 4, 4) float64, order (n,) int64, kept (min(limit, n),) int64");
+        goto done;
+    }
+    const double *T = Tb.buf;
+    const int64_t *order = Ob.buf;
+    int64_t *kept = Kb.buf;
+    for (int64_t i = 0; i < n; i++)
+        if (order[i] < 0 || order[i] >= B) {
+            PyErr_SetString(PyExc_IndexError, "distinct: an index of order is outside T");
+            goto done;
+        }
+    int64_t m = 0;
+    Py_BEGIN_ALLOW_THREADS
+    for (int64_t i = 0; i < n && m < limit; i++) {
+        const double *a = T + 16 * order[i];
+        int64_t j = 0;
+        while (j < m && !near_pose(T + 16 * kept[j], a, cos_min, near2)) j++;
+        if (j == m) kept[m++] = order[i];
+    }
+    Py_END_ALLOW_THREADS
+    result = PyLong_FromLongLong(m);
+done:
+    PyBuffer_Release(&Tb);
+    PyBuffer_Release(&Ob);
+    PyBuffer_Release(&Kb);
+    return result;
+}
+
 static PyMethodDef methods[] = {
+    {"distinct", distinct, METH_VARARGS,
+     "distinct(T, order, cos_min, near2, limit, kept) -> n: the first entries of order whose pose is near no kept one"},
     {"rigid_from_covariance", rigid_from_covariance, METH_VARARGS,
      "rigid_from_covariance(H, cs, cd, T): the proper rotation maximising trace(R H) and its translation, each of B"},
     {NULL, NULL, 0, NULL}};

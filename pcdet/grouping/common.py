@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sparse
 
+from ..align import _align
 from ..graph import compatible_pairs, compiled, length_matches
 from ..pairs import ScenePairs, pair_features
 from ..residuals import tukey_step, within
@@ -118,10 +119,21 @@ def correspondence_points(scene_pts: np.ndarray, cand: np.ndarray, model_pts: np
     return np.repeat(scene_pts, cand.shape[1], axis=0), model_pts[np.maximum(cand.reshape(-1), 0)]
 
 
-def distinct_poses(T: np.ndarray, order: np.ndarray, diameter: float, limit: int) -> np.ndarray:
+def distinct_poses(T: np.ndarray, order: np.ndarray, diameter: float, limit: int, *, use_compiled: bool = True
+                   ) -> np.ndarray:
     """The first ``limit`` entries of ``order`` (indices into T (B, 4, 4)) whose pose differs from every earlier
-    kept one (rotation by more than 10 degrees or translation by more than a fifth of the diameter)."""
+    kept one (rotation by more than 10 degrees or translation by more than a fifth of the diameter).
+
+    Greedy, in order: the compiled kernel (``pcdet/_align.c``) walks ``order`` and stops at ``limit``; numpy
+    (``use_compiled`` False, or no kernel built) tests runs of 256 at once. The two sum trace(Ra^T Rb) in their own
+    orders, so a pair within a last bit of 10 degrees can be judged apart by one and near by the other."""
     cos10, near2 = np.cos(np.radians(10)), (0.2 * diameter) ** 2
+    order = np.asarray(order, np.int64)
+    if use_compiled and _align is not None:
+        kept = np.empty(max(min(limit, len(order)), 0), np.int64)
+        n = _align.distinct(np.ascontiguousarray(T, dtype=np.float64), np.ascontiguousarray(order), float(cos10),
+                            float(near2), max(int(limit), 0), kept)
+        return kept[:n]
     R, t = T[:, :3, :3].reshape(len(T), 9), T[:, :3, 3]
 
     def close(A: np.ndarray, C: np.ndarray) -> np.ndarray:  # (len(A), len(C)): whether A[a] is near C[c]
@@ -130,7 +142,6 @@ def distinct_poses(T: np.ndarray, order: np.ndarray, diameter: float, limit: int
         return (c > cos10) & (np.einsum("aci,aci->ac", dt, dt) < near2)
 
     kept = np.zeros(0, np.int64)
-    order = np.asarray(order, np.int64)
     for i in range(0, len(order), 256):  # a run of candidates is tested against the poses kept before it at once
         chunk = order[i:i + 256]
         if len(kept):
