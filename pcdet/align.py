@@ -20,6 +20,20 @@ def compiled() -> bool:
     return _align is not None
 
 
+def greedy_distinct(T: np.ndarray, order: np.ndarray, cos_min: float, near2: float, limit: int
+                    ) -> np.ndarray | None:
+    """The compiled greedy walk of ``grouping.common.distinct_poses``: the first ``limit`` entries of ``order``
+    ((n,) indices into T (B, 4, 4)) whose pose is near no entry kept before it, near meaning (trace(Ra^T Rb) - 1) / 2
+    > ``cos_min`` and |ta - tb|^2 < ``near2`` (m^2). (k,) int64, or None where the kernel is not built."""
+    if _align is None:
+        return None
+    order = np.ascontiguousarray(order, dtype=np.int64)
+    kept = np.empty(max(min(limit, len(order)), 0), np.int64)
+    n = _align.distinct(np.ascontiguousarray(T, dtype=np.float64), order, float(cos_min), float(near2),
+                        max(int(limit), 0), kept)
+    return kept[:n]
+
+
 def kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """Rigid ``T_dst_src`` (4, 4) minimising sum w ||R src + t - dst||^2; ``R`` is a proper rotation (det +1).
 

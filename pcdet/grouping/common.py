@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sparse
 
-from ..align import _align
+from ..align import greedy_distinct
 from ..graph import compatible_pairs, compiled, length_matches
 from ..pairs import ScenePairs, pair_features
 from ..residuals import tukey_step, within
@@ -129,11 +129,9 @@ def distinct_poses(T: np.ndarray, order: np.ndarray, diameter: float, limit: int
     orders, so a pair within a last bit of 10 degrees can be judged apart by one and near by the other."""
     cos10, near2 = np.cos(np.radians(10)), (0.2 * diameter) ** 2
     order = np.asarray(order, np.int64)
-    if use_compiled and _align is not None:
-        kept = np.empty(max(min(limit, len(order)), 0), np.int64)
-        n = _align.distinct(np.ascontiguousarray(T, dtype=np.float64), np.ascontiguousarray(order), float(cos10),
-                            float(near2), max(int(limit), 0), kept)
-        return kept[:n]
+    kept = greedy_distinct(T, order, cos10, near2, limit) if use_compiled else None
+    if kept is not None:
+        return kept
     R, t = T[:, :3, :3].reshape(len(T), 9), T[:, :3, 3]
 
     def close(A: np.ndarray, C: np.ndarray) -> np.ndarray:  # (len(A), len(C)): whether A[a] is near C[c]
