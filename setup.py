@@ -11,6 +11,6 @@ from setuptools import Extension, setup
 # no fused multiply-adds: the length test must round as numpy's float32 arithmetic does (pcdet/_graph.c), the
 # residuals are summed in one stated order (pcdet/_residuals.c), and the grid's distances as the KD-tree's
 # (pcdet/_grid.c) and the FPFH pair features as open3d's (pcdet/_fpfh.c)
-setup(ext_modules=[Extension(f"pcdet.{name}", [f"pcdet/{name}.c"], depends=["pcdet/_cells.h", "pcdet/_near.h"],
+setup(ext_modules=[Extension(f"pcdet.{name}", [f"pcdet/{name}.c"], depends=["pcdet/_cells.h", "pcdet/_near.h", "pcdet/_eigen.h"],
                              extra_compile_args=["-ffp-contract=off"], optional=True)
-                   for name in ("_graph", "_residuals", "_grid", "_fpfh", "_align", "_normals")])
+                   for name in ("_graph", "_residuals", "_grid", "_fpfh", "_align", "_normals", "_lrf")])

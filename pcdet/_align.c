@@ -20,44 +20,7 @@
 #include <math.h>
 #include <stdint.h>
 
-/* Eigen-decomposition of the symmetric 4 x 4 matrix A (overwritten: its diagonal ends as the eigenvalues) by
- * cyclic Jacobi sweeps; V's columns are the eigenvectors. */
-static void jacobi4(double A[4][4], double V[4][4]) {
-    for (int i = 0; i < 4; i++)
-        for (int j = 0; j < 4; j++) V[i][j] = (i == j);
-    for (int sweep = 0; sweep < 64; sweep++) {
-        double off = 0, diag = 0;
-        for (int p = 0; p < 4; p++) {
-            diag += A[p][p] * A[p][p];
-            for (int q = p + 1; q < 4; q++) off += A[p][q] * A[p][q];
-        }
-        if (off == 0 || off < 1e-34 * diag) break; /* off-diagonal below 1e-17 of the diagonal's size */
-        for (int p = 0; p < 3; p++)
-            for (int q = p + 1; q < 4; q++) {
-                double apq = A[p][q];
-                if (apq == 0) continue;
-                double theta = (A[q][q] - A[p][p]) / (2 * apq);
-                double t = (theta >= 0 ? 1.0 : -1.0) / (fabs(theta) + sqrt(theta * theta + 1));
-                double c = 1 / sqrt(t * t + 1), s = t * c;
-                for (int k = 0; k < 4; k++) { /* A <- A J, then A <- J^T A, J the rotation in the (p, q) plane */
-                    double akp = A[k][p], akq = A[k][q];
-                    A[k][p] = c * akp - s * akq;
-                    A[k][q] = s * akp + c * akq;
-                }
-                for (int k = 0; k < 4; k++) {
-                    double apk = A[p][k], aqk = A[q][k];
-                    A[p][k] = c * apk - s * aqk;
-                    A[q][k] = s * apk + c * aqk;
-                }
-                A[p][q] = A[q][p] = 0;
-                for (int k = 0; k < 4; k++) {
-                    double vkp = V[k][p], vkq = V[k][q];
-                    V[k][p] = c * vkp - s * vkq;
-                    V[k][q] = s * vkp + c * vkq;
-                }
-            }
-    }
-}
+#include "_eigen.h"
 
 static void rigid(const double *H, const double *cs, const double *cd, double *T) {
     double xx = H[0], xy = H[1], xz = H[2], yx = H[3], yy = H[4], yz = H[5], zx = H[6], zy = H[7], zz = H[8];
@@ -66,7 +29,7 @@ static void rigid(const double *H, const double *cs, const double *cd, double *T
                       {zx - xz, xy + yx, -xx + yy - zz, yz + zy},
                       {xy - yx, zx + xz, yz + zy, -xx - yy + zz}};
     double V[4][4];
-    jacobi4(N, V);
+    jacobi(4, &N[0][0], &V[0][0]);
     int best = 0;
     for (int i = 1; i < 4; i++)
         if (N[i][i] > N[best][best]) best = i;

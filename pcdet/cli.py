@@ -626,11 +626,12 @@ def config_dump(pipeline: Optional[str] = typer.Option(None, help="Preset name o
 def version():
     """Print the version, and whether the compiled kernels were built (without them, numpy and scipy compute the
     same results more slowly)."""
-    from . import align, cloud, features, graph, grid, residuals
+    from . import align, cloud, features, graph, grid, lrf, residuals
 
     out_console.print(__version__)
     kernels = {"graph": graph.compiled(), "residuals": residuals.compiled(), "grid": grid.compiled(),
-               "fpfh": features.compiled(), "align": align.compiled(), "normals": cloud.compiled()}
+               "fpfh": features.compiled(), "align": align.compiled(), "normals": cloud.compiled(),
+               "lrf": lrf.compiled()}
     built = [name for name, ok in kernels.items() if ok]
     missing = [name for name, ok in kernels.items() if not ok]
     line = f"compiled kernels: {', '.join(built) or 'none'}"

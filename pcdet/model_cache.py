@@ -17,9 +17,10 @@ from .io.atomic import atomic_write_bytes
 from .io.models import UnitsWarning
 from .model import ObjectModel, build_model
 
-# 13: normals by pcdet's kernel; 12: FPFH by pcdet's kernel (neighbours at equal distance by index); 11: FPFH from
+# 14: SHOT frames turned by a rule that does not depend on the eigen-solver's sign (pcdet.lrf); 13: normals by pcdet's
+# kernel; 12: FPFH by pcdet's kernel (neighbours at equal distance by index); 11: FPFH from
 # open3d's double-precision implementation; 10: normals by orient_along_surface
-CACHE_VERSION = 13
+CACHE_VERSION = 14
 
 
 def _hash_file(path: Path) -> str:
