@@ -17,7 +17,7 @@ sysdeps:
 	fi
 
 $(STAMP): pyproject.toml setup.py pcdet/_graph.c pcdet/_residuals.c pcdet/_grid.c pcdet/_fpfh.c pcdet/_align.c \
-		pcdet/_normals.c pcdet/_lrf.c pcdet/_cells.h pcdet/_near.h pcdet/_eigen.h
+		pcdet/_normals.c pcdet/_lrf.c pcdet/_votes.c pcdet/_cells.h pcdet/_near.h pcdet/_eigen.h
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[dev]'

@@ -13,4 +13,4 @@ from setuptools import Extension, setup
 # (pcdet/_grid.c) and the FPFH pair features as open3d's (pcdet/_fpfh.c)
 setup(ext_modules=[Extension(f"pcdet.{name}", [f"pcdet/{name}.c"], depends=["pcdet/_cells.h", "pcdet/_near.h", "pcdet/_eigen.h"],
                              extra_compile_args=["-ffp-contract=off"], optional=True)
-                   for name in ("_graph", "_residuals", "_grid", "_fpfh", "_align", "_normals", "_lrf")])
+                   for name in ("_graph", "_residuals", "_grid", "_fpfh", "_align", "_normals", "_lrf", "_votes")])

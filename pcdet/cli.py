@@ -627,11 +627,12 @@ def version():
     """Print the version, and whether the compiled kernels were built (without them, numpy and scipy compute the
     same results more slowly)."""
     from . import align, cloud, features, graph, grid, lrf, residuals
+    from .grouping import hough
 
     out_console.print(__version__)
     kernels = {"graph": graph.compiled(), "residuals": residuals.compiled(), "grid": grid.compiled(),
                "fpfh": features.compiled(), "align": align.compiled(), "normals": cloud.compiled(),
-               "lrf": lrf.compiled()}
+               "lrf": lrf.compiled(), "votes": hough.compiled()}
     built = [name for name, ok in kernels.items() if ok]
     missing = [name for name, ok in kernels.items() if not ok]
     line = f"compiled kernels: {', '.join(built) or 'none'}"

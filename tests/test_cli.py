@@ -293,8 +293,9 @@ def test_version_names_the_compiled_kernels(monkeypatch):
 
     res = _cli("version")
     assert res.exit_code == 0
-    assert res.output.splitlines() == [__version__, "compiled kernels: graph, residuals, grid, fpfh, align, normals"]
+    kernels = "graph, residuals, grid, fpfh, align, normals, lrf, votes"
+    assert res.output.splitlines() == [__version__, f"compiled kernels: {kernels}"]
     monkeypatch.setattr(residuals, "_residuals", None)
     line = _cli("version").output.splitlines()[1]
-    assert line.startswith("compiled kernels: graph, grid, fpfh, align, normals (not built: residuals; numpy and scipy "
-                           "compute the same results")
+    assert line.startswith("compiled kernels: graph, grid, fpfh, align, normals, lrf, votes (not built: residuals; "
+                           "numpy and scipy compute the same results")

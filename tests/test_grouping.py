@@ -198,20 +198,23 @@ def test_hough_spin_keeps_the_x_axis_vote_where_the_frames_repeat(library):
 
 
 def test_hough_vote_peaks_dense_and_sparse_grids_agree(rng, monkeypatch):
-    """The vote grid is dense over a small bounding box and sparse over a large one: both give the same peaks
-    and vote sums (exactly), strongest first, for clustered and scattered votes."""
+    """The vote grid is dense over a small bounding box and sparse over a large one, and a dense one is summed by
+    the compiled kernel where it is built: all give the same peaks and vote sums (exactly, to the bit), strongest
+    first, for clustered and scattered votes, with and without per-vote weights."""
     import pcdet.grouping.hough as hough
 
     for trial in range(6):
         centre = rng.normal(0, 0.3, 3)
         c = np.concatenate([rng.normal(0, 0.3, (2000, 3)), rng.normal(centre, 0.01, (200, 3))])
+        weight = None if trial % 2 else rng.uniform(0.5, 4.0, len(c))
         monkeypatch.setattr(hough, "DENSE_CELLS", 10 ** 9)
-        dense = hough._vote_peaks(c, 0.02, 2.0)
+        dense = hough._vote_peaks(c, 0.02, 2.0, weight, use_compiled=False)
+        compiled = hough._vote_peaks(c, 0.02, 2.0, weight)
         monkeypatch.setattr(hough, "DENSE_CELLS", 0)
-        sparse = hough._vote_peaks(c, 0.02, 2.0)
-        assert len(dense) == len(sparse) > 0
-        for (a, va), (b, vb) in zip(dense, sparse):
-            assert (a == b).all() and va == vb
+        sparse = hough._vote_peaks(c, 0.02, 2.0, weight)
+        assert len(dense) == len(sparse) == len(compiled) > 0
+        for (a, va), (b, vb), (e, ve) in zip(dense, sparse, compiled):
+            assert (a == b).all() and (a == e).all() and va == vb == ve
         votes = [v for _, v in dense]
         assert votes == sorted(votes, reverse=True)
         assert np.linalg.norm((dense[0][0] + 0.5) * 0.02 - centre) < 0.02  # the cluster is the strongest peak

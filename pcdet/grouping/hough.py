@@ -47,7 +47,17 @@ if TYPE_CHECKING:
     from ..scene import SceneKeypoints
     from . import GroupingConfig
 
+try:  # the compiled kernel, where the install could build it
+    from .. import _votes
+except ImportError:  # pragma: no cover - exercised where no compiler was at hand
+    _votes = None
+
 DENSE_CELLS = 4_000_000  # the vote grid is dense up to this many cells (32 MB), sparse beyond
+
+
+def compiled() -> bool:
+    """Whether the votes are summed by the compiled kernel (otherwise numpy sums the same)."""
+    return _votes is not None
 
 
 @dataclass(frozen=True)
@@ -239,15 +249,25 @@ def _near_cells(centre: np.ndarray, b: float, cells: np.ndarray) -> np.ndarray:
     return np.flatnonzero(np.isin(code(base), code(block)))
 
 
-def _vote_peaks(centre: np.ndarray, b: float, min_votes: float, weight: np.ndarray | None = None
-                ) -> list[tuple[np.ndarray, float]]:
+def _vote_peaks(centre: np.ndarray, b: float, min_votes: float, weight: np.ndarray | None = None, *,
+                use_compiled: bool = True) -> list[tuple[np.ndarray, float]]:
     """Trilinear votes of the points ``centre`` (N, 3), each of ``weight`` (N,; default 1), into a grid of cell
     ``b`` m; the cells that are maxima of
     their 26-neighbourhood with at least ``min_votes``, strongest first (ties by cell index), as (cell index (3,),
     votes). The grid is dense over the votes' bounding box when that has at most ``DENSE_CELLS`` cells, else
-    sparse; both give the same peaks."""
+    sparse; both give the same peaks. A dense grid is summed by the compiled kernel (``pcdet/_votes.c``) where it
+    is built, in numpy's order, so to the bit as numpy's bincount (``use_compiled`` False: numpy)."""
     if len(centre) == 0:
         return []
+    if use_compiled and _votes is not None:
+        c = np.ascontiguousarray(centre, dtype=np.float64)
+        box = _votes.box(c, float(b))
+        lo, span = np.array(box[:3], np.int64), np.array(box[3:], np.int64)
+        if int(np.prod(span)) <= DENSE_CELLS:
+            votes = np.zeros(int(np.prod(span)))
+            _votes.accumulate(c, float(b), np.zeros(0) if weight is None else np.ascontiguousarray(weight, np.float64),
+                              lo, span, votes)
+            return _dense_peaks(votes, span, lo, min_votes)
     g = centre / b - 0.5
     base = np.floor(g).astype(np.int64)
     frac = g - base
@@ -265,23 +285,38 @@ def _vote_peaks(centre: np.ndarray, b: float, min_votes: float, weight: np.ndarr
                 w = wxy * side[2][dz]
                 weights.append(w if weight is None else w * weight)
     codes, weights = np.concatenate(codes), np.concatenate(weights)
-    # a neighbour's code differs by one of these (the margin keeps every voted cell's neighbours in the box)
-    steps = np.array([(i * span[1] + j) * span[2] + m for i in (-1, 0, 1) for j in (-1, 0, 1) for m in (-1, 0, 1)
-                      if (i, j, m) != (0, 0, 0)])
     if int(np.prod(span)) <= DENSE_CELLS:
-        votes = np.bincount(codes, weights=weights, minlength=int(np.prod(span)))
-        cand = np.flatnonzero(votes >= min_votes)
-        v = votes[cand]
-        is_peak = np.all(votes[cand[:, None] + steps[None, :]] <= v[:, None], axis=1)
-    else:
-        ucode, inv = np.unique(codes, return_inverse=True)
-        votes = np.bincount(inv.reshape(-1), weights=weights)
-        keep = votes >= min_votes
-        cand, v = ucode[keep], votes[keep]
-        nb = cand[:, None] + steps[None, :]
-        pos = np.minimum(np.searchsorted(ucode, nb), len(ucode) - 1)
-        nbv = np.where(ucode[pos] == nb, votes[pos], 0.0)
-        is_peak = np.all(nbv <= v[:, None], axis=1)
+        return _dense_peaks(np.bincount(codes, weights=weights, minlength=int(np.prod(span))), span, lo, min_votes)
+    ucode, inv = np.unique(codes, return_inverse=True)
+    votes = np.bincount(inv.reshape(-1), weights=weights)
+    keep = votes >= min_votes
+    cand, v = ucode[keep], votes[keep]
+    nb = cand[:, None] + _steps(span)[None, :]
+    pos = np.minimum(np.searchsorted(ucode, nb), len(ucode) - 1)
+    nbv = np.where(ucode[pos] == nb, votes[pos], 0.0)
+    return _strongest(cand, v, np.all(nbv <= v[:, None], axis=1), span, lo)
+
+
+def _steps(span: np.ndarray) -> np.ndarray:
+    """(26,) how a cell's code differs from its neighbours' on a grid of ``span`` cells (the margin of
+    ``_vote_peaks`` keeps every voted cell's neighbours in the box)."""
+    return np.array([(i * span[1] + j) * span[2] + m for i in (-1, 0, 1) for j in (-1, 0, 1) for m in (-1, 0, 1)
+                     if (i, j, m) != (0, 0, 0)])
+
+
+def _dense_peaks(votes: np.ndarray, span: np.ndarray, lo: np.ndarray, min_votes: float
+                 ) -> list[tuple[np.ndarray, float]]:
+    """``_vote_peaks``'s answer from the dense grid of summed ``votes`` (span0 * span1 * span2,)."""
+    cand = np.flatnonzero(votes >= min_votes)
+    v = votes[cand]
+    is_peak = np.all(votes[cand[:, None] + _steps(span)[None, :]] <= v[:, None], axis=1)
+    return _strongest(cand, v, is_peak, span, lo)
+
+
+def _strongest(cand: np.ndarray, v: np.ndarray, is_peak: np.ndarray, span: np.ndarray, lo: np.ndarray
+               ) -> list[tuple[np.ndarray, float]]:
+    """``_vote_peaks``'s answer from the candidate cells' codes ``cand`` (P,), their votes ``v`` (P,) and whether each
+    is a peak: the peaks, strongest first (ties by cell index), as (cell index (3,), votes)."""
     cand, v = cand[is_peak], v[is_peak]
     order = np.lexsort((cand, -v))  # strongest first; the code orders cells as their index tuples do
     cells = np.column_stack([cand // (span[1] * span[2]), cand // span[2] % span[1], cand % span[2]]) + lo
