@@ -223,7 +223,8 @@ def test_hough_vote_peaks_dense_and_sparse_grids_agree(rng, monkeypatch):
 def test_hough_spun_votes_and_peak_neighbourhoods(rng):
     """Spin votes: each reference point equals the one from the scene frame turned about its z explicitly
     (F' = Rz F, s + F'^T local; 1e-12 m). Voters: the votes kept for the peaks' ball queries include every vote
-    within 1.5 bins of a peak (the search is exact, not approximate) and leave out most far ones."""
+    within 1.5 bins of a peak (the search is exact, not approximate) and leave out most far ones; each peak's voters,
+    found by the compiled kernel or the KD-tree, are exactly the votes within 1.5 bins."""
     import pcdet.grouping.hough as hough
     from scipy.spatial.transform import Rotation
 
@@ -243,6 +244,13 @@ def test_hough_spun_votes_and_peak_neighbourhoods(rng):
         within |= np.linalg.norm(votes - (cell + 0.5) * b, axis=1) <= 1.5 * b
     assert within.sum() > 300 and np.isin(np.flatnonzero(within), near).all()
     assert len(near) < 0.2 * len(votes)
+    # each peak's voters, by the compiled kernel's buckets and by the KD-tree: every vote within 1.5 bins, ascending
+    for use_compiled in (True, False):
+        found = hough._peak_votes(votes, b, cells, use_compiled=use_compiled)
+        assert len(found) == len(cells)
+        for cell, idx in zip(cells, found):
+            want = np.flatnonzero(np.linalg.norm(votes - (cell + 0.5) * b, axis=1) <= 1.5 * b)
+            assert np.array_equal(idx, want)
 
 
 def test_every_registered_grouper_has_its_config_section_and_protocol():

@@ -124,14 +124,12 @@ class HoughGrouper:
         if not peaks:
             return []
         used = peaks[: 4 * c.max_groups]
-        near = _near_cells(centre, c.bin, np.array([cell for cell, _ in used]))  # votes that can be within 1.5 bins
-        tree = cKDTree(centre[near])
         cos_tol, cos_apart = np.cos(np.radians(c.rotation_tol_deg)), np.cos(np.radians(2 * c.rotation_tol_deg))
         cands, group_sizes = [], []
-        for cell, _ in used:
-            # voters: predicted reference points near the peak (grid index c sits at (c + 0.5) * bin)
+        # voters: predicted reference points within 1.5 bins of a peak (grid index c sits at (c + 0.5) * bin)
+        near = _peak_votes(centre, c.bin, np.array([cell for cell, _ in used]))
+        for (cell, _), votes in zip(used, near):
             peak = (cell + 0.5) * c.bin
-            votes = near[np.array(tree.query_ball_point(peak, 1.5 * c.bin), dtype=np.int64)]
             voters = np.unique(owner[votes])  # correspondences
             if len(voters) < min_inl:
                 continue
@@ -231,6 +229,26 @@ def _turns(theta: np.ndarray) -> np.ndarray:
     Rz = np.zeros((len(theta), 3, 3))
     Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, s, -s, c, 1.0
     return Rz
+
+
+def _peak_votes(centre: np.ndarray, b: float, cells: np.ndarray, *, use_compiled: bool = True) -> list[np.ndarray]:
+    """For each peak of ``cells`` (P, 3) (grid indices as ``_vote_peaks`` gives them; the peak at (cell + 0.5) b),
+    the ascending indices of the votes ``centre`` (V, 3) within 1.5 ``b`` of it. The compiled kernel buckets the
+    votes by cell and looks at the cells around each peak; numpy and scipy (``use_compiled`` False, or no kernel
+    built) ask a KD-tree of the votes in those cells (``_near_cells``). Both keep a vote at exactly 1.5 b."""
+    r = 1.5 * b
+    peaks = (cells + 0.5) * b
+    if use_compiled and _votes is not None and len(cells):
+        c = np.ascontiguousarray(centre, dtype=np.float64)
+        box = _votes.box(c, float(b))
+        lo, span = np.array(box[:3], np.int64), np.array(box[3:], np.int64)
+        out = np.frombuffer(_votes.near(c, float(b), lo, span, np.ascontiguousarray(cells, dtype=np.int64),
+                                        np.ascontiguousarray(peaks, dtype=np.float64), float(r)), np.int64)
+        P = len(cells)
+        return np.split(out[P:], np.cumsum(out[:P])[:-1])
+    near = _near_cells(centre, b, cells)  # votes that can be within 1.5 bins
+    tree = cKDTree(centre[near])
+    return [np.sort(near[np.array(tree.query_ball_point(p, r), dtype=np.int64)]) for p in peaks]
 
 
 def _near_cells(centre: np.ndarray, b: float, cells: np.ndarray) -> np.ndarray:
