@@ -56,7 +56,8 @@ DENSE_CELLS = 4_000_000  # the vote grid is dense up to this many cells (32 MB),
 
 
 def compiled() -> bool:
-    """Whether the votes are summed by the compiled kernel (otherwise numpy sums the same)."""
+    """Whether the votes are summed, and each peak's voters found, by the compiled kernel (otherwise numpy and scipy
+    give the same)."""
     return _votes is not None
 
 
@@ -234,14 +235,17 @@ def _turns(theta: np.ndarray) -> np.ndarray:
 def _peak_votes(centre: np.ndarray, b: float, cells: np.ndarray, *, use_compiled: bool = True) -> list[np.ndarray]:
     """For each peak of ``cells`` (P, 3) (grid indices as ``_vote_peaks`` gives them; the peak at (cell + 0.5) b),
     the ascending indices of the votes ``centre`` (V, 3) within 1.5 ``b`` of it. The compiled kernel buckets the
-    votes by cell and looks at the cells around each peak; numpy and scipy (``use_compiled`` False, or no kernel
-    built) ask a KD-tree of the votes in those cells (``_near_cells``). Both keep a vote at exactly 1.5 b."""
+    votes by cell and looks at the cells around each peak, where the votes' box has at most ``DENSE_CELLS`` cells;
+    numpy and scipy (``use_compiled`` False, no kernel built, or a larger box) ask a KD-tree of the votes in those
+    cells (``_near_cells``). Both keep a vote at exactly 1.5 b."""
     r = 1.5 * b
     peaks = (cells + 0.5) * b
     if use_compiled and _votes is not None and len(cells):
         c = np.ascontiguousarray(centre, dtype=np.float64)
         box = _votes.box(c, float(b))
         lo, span = np.array(box[:3], np.int64), np.array(box[3:], np.int64)
+        use_compiled = int(np.prod(span)) <= DENSE_CELLS  # a bucket per cell of the box
+    if use_compiled and _votes is not None and len(cells):
         out = np.frombuffer(_votes.near(c, float(b), lo, span, np.ascontiguousarray(cells, dtype=np.int64),
                                         np.ascontiguousarray(peaks, dtype=np.float64), float(r)), np.int64)
         P = len(cells)
