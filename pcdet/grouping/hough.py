@@ -240,13 +240,12 @@ def _peak_votes(centre: np.ndarray, b: float, cells: np.ndarray, *, use_compiled
     cells (``_near_cells``). Both keep a vote at exactly 1.5 b."""
     r = 1.5 * b
     peaks = (cells + 0.5) * b
-    c = np.ascontiguousarray(centre, dtype=np.float64)
-    use_compiled = use_compiled and _votes is not None and len(cells) > 0 and bool(np.isfinite(c).all())
-    if use_compiled:
+    if use_compiled and _votes is not None and len(cells):
+        c = np.ascontiguousarray(centre, dtype=np.float64)
         box = _votes.box(c, float(b))
         lo, span = np.array(box[:3], np.int64), np.array(box[3:], np.int64)
         use_compiled = int(np.prod(span)) <= DENSE_CELLS  # a bucket per cell of the box
-    if use_compiled:
+    if use_compiled and _votes is not None and len(cells):
         out = np.frombuffer(_votes.near(c, float(b), lo, span, np.ascontiguousarray(cells, dtype=np.int64),
                                         np.ascontiguousarray(peaks, dtype=np.float64), float(r)), np.int64)
         P = len(cells)
@@ -282,8 +281,8 @@ def _vote_peaks(centre: np.ndarray, b: float, min_votes: float, weight: np.ndarr
     is built, in numpy's order, so to the bit as numpy's bincount (``use_compiled`` False: numpy)."""
     if len(centre) == 0:
         return []
-    c = np.ascontiguousarray(centre, dtype=np.float64)
-    if use_compiled and _votes is not None and np.isfinite(c).all():  # the kernel refuses votes that are not
+    if use_compiled and _votes is not None:
+        c = np.ascontiguousarray(centre, dtype=np.float64)
         box = _votes.box(c, float(b))
         lo, span = np.array(box[:3], np.int64), np.array(box[3:], np.int64)
         if int(np.prod(span)) <= DENSE_CELLS:
