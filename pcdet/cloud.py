@@ -104,7 +104,7 @@ def _normals_grid(points: np.ndarray, radius: float, max_nn: int, workers: int =
     """(N, 3) normals of ``points`` (N, 3) float64 by the compiled kernel, split over ``workers`` threads (0: every
     core; each point's normal depends on nothing else: any split gives the same), or None where the grid cannot
     hold the cloud."""
-    from .grid import CellGrid, over_threads
+    from .grid import CellGrid, over_ranges
 
     if not 0 < radius < np.inf or max_nn < 1:
         return None
@@ -113,12 +113,11 @@ def _normals_grid(points: np.ndarray, radius: float, max_nn: int, workers: int =
         return None
     out = np.empty((len(points), 3))
 
-    def run(part: np.ndarray) -> None:  # a contiguous run of grid positions
-        lo, hi = (int(part[0]), int(part[-1]) + 1) if len(part) else (0, 0)
+    def run(lo: int, hi: int) -> None:  # a contiguous run of grid positions
         _normals.normals(g.points, g.order, g.start, g.keys, g.table, g.cell, lo, hi, radius * radius, int(max_nn),
                          out[lo:hi])
 
-    over_threads(run, np.arange(len(points)), workers, 4000)
+    over_ranges(run, len(points), workers, 4000)
     n = np.empty_like(out)
     n[g.order] = out  # the kernel works in the grid's order
     return n

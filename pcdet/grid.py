@@ -51,6 +51,13 @@ def over_threads(fn, items: np.ndarray, workers: int, min_items: int) -> list:
         return list(pool.map(fn, parts))
 
 
+def over_ranges(fn, n: int, workers: int, min_items: int) -> None:
+    """``fn(lo, hi)`` on contiguous ranges of ``0..n`` that cover it, one per thread (``over_threads``), for a kernel
+    that writes its answers for positions lo..hi-1 into an array of its own."""
+    over_threads(lambda part: fn(int(part[0]), int(part[-1]) + 1) if len(part) else None, np.arange(n), workers,
+                 min_items)
+
+
 def compiled() -> bool:
     """Whether the compiled kernel is in use (otherwise ``GridTree`` answers every query with its KD-tree)."""
     return _grid is not None

@@ -96,7 +96,7 @@ def shot_lrf(points: np.ndarray, keypoints: np.ndarray, radius: float, tree: cKD
 def _lrf_grid(points: np.ndarray, keypoints: np.ndarray, radius: float, min_neighbours: int, workers: int
               ) -> np.ndarray | None:
     """(K, 3, 3) frames by the compiled kernel (NaN where not valid), or None where the grid cannot hold the cloud."""
-    from .grid import CellGrid, over_threads
+    from .grid import CellGrid, over_ranges
 
     g = CellGrid(np.asarray(points, np.float64), radius * (1 + 1e-9))  # a point within reach lies in the 27 cells
     if not g.usable:
@@ -104,10 +104,9 @@ def _lrf_grid(points: np.ndarray, keypoints: np.ndarray, radius: float, min_neig
     q = np.ascontiguousarray(keypoints, dtype=np.float64)
     out = np.empty((len(q), 9))
 
-    def run(part: np.ndarray) -> None:  # a contiguous run of queries
-        lo, hi = (int(part[0]), int(part[-1]) + 1) if len(part) else (0, 0)
+    def run(lo: int, hi: int) -> None:  # a contiguous run of queries
         _lrf.frames(g.points, g.order, g.start, g.keys, g.table, g.cell, q[lo:hi], float(radius),
                     int(min_neighbours), out[lo:hi])
 
-    over_threads(run, np.arange(len(q)), workers, 2000)
+    over_ranges(run, len(q), workers, 2000)
     return out.reshape(-1, 3, 3)
