@@ -30,7 +30,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
+
+from .grid import within_any
 
 if TYPE_CHECKING:
     from .cloud import Plane
@@ -60,10 +61,10 @@ def candidate_terms(scene_points: np.ndarray, model_points: list[np.ndarray],
         height = scene_points @ plane.normal + plane.offset
         level = scene_normals @ plane.normal >= np.cos(np.radians(SUPPORT_DEG))
     explained, clutter = [], []
+    boxes = _SortedX(scene_points)
     for P in model_points:
-        e = _near(scene_points, P, explain_radius)
-        rest = np.setdiff1d(_near(scene_points, scene_points[e], clutter_radius, inclusive=True), e,
-                            assume_unique=True)
+        e = _near(boxes, P, explain_radius)
+        rest = np.setdiff1d(_near(boxes, scene_points[e], clutter_radius, inclusive=True), e, assume_unique=True)
         if height is not None:
             base = float((P @ plane.normal).min()) + plane.offset + explain_radius
             support = level & (height <= base)
@@ -74,17 +75,32 @@ def candidate_terms(scene_points: np.ndarray, model_points: list[np.ndarray],
     return GlobalTerms(explained, clutter, viol)
 
 
-def _near(points: np.ndarray, centres: np.ndarray, radius: float, *, inclusive: bool = False) -> np.ndarray:
-    """Ascending indices of the (N, 3) ``points`` closer than ``radius`` (m; or as close, ``inclusive``) to any of
-    the (C, 3) ``centres``: the points in the box around the centres, looked up in a KD-tree of the centres (one
-    query per point of the box, where a ball query around each centre listed every neighbour many times over)."""
+class _SortedX:
+    """The (N, 3) points sorted by x once, so that the points in an axis-aligned box are found from the slice of
+    x's range alone (a search in the sorted x), not by testing every point of the frame."""
+
+    def __init__(self, points: np.ndarray):
+        self.points = points
+        self.order = np.argsort(points[:, 0], kind="stable")
+        self.x, self.y, self.z = (np.ascontiguousarray(points[self.order, i]) for i in range(3))
+
+    def box(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Ascending indices of the points p with lo <= p <= hi (each (3,), m)."""
+        i, j = np.searchsorted(self.x, lo[0], "left"), np.searchsorted(self.x, hi[0], "right")
+        y, z = self.y[i:j], self.z[i:j]
+        return np.sort(self.order[i:j][(y >= lo[1]) & (y <= hi[1]) & (z >= lo[2]) & (z <= hi[2])])
+
+
+def _near(points: _SortedX, centres: np.ndarray, radius: float, *, inclusive: bool = False) -> np.ndarray:
+    """Ascending indices of the points closer than ``radius`` (m; or as close, ``inclusive``) to any of the (C, 3)
+    ``centres``: of the points in the box around the centres, those with a centre within reach (``grid.within_any``;
+    one question per point of the box, where a ball query around each centre listed every neighbour many times
+    over)."""
     if len(centres) == 0:
         return np.zeros(0, np.int64)
-    lo, hi = centres.min(axis=0) - radius, centres.max(axis=0) + radius
-    box = np.flatnonzero(np.all((points >= lo) & (points <= hi), axis=1))
+    box = points.box(centres.min(axis=0) - radius, centres.max(axis=0) + radius)
     bound = np.nextafter(radius, np.inf) if inclusive else radius
-    d, _ = cKDTree(centres).query(points[box], distance_upper_bound=bound)
-    return box[np.isfinite(d)]
+    return box[within_any(points.points[box], centres, bound)]
 
 
 def select(terms: GlobalTerms, w_dup: float, w_clutter: float, w_viol: float, max_steps: int = 200, *,

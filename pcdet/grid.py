@@ -109,6 +109,21 @@ def components(points: np.ndarray, tolerance: float) -> np.ndarray | None:
     return out
 
 
+def within_any(queries: np.ndarray, centres: np.ndarray, r: float) -> np.ndarray:
+    """(Q,) bool: whether any of the (C, 3) ``centres`` lies within ``r`` m (d < r) of each (Q, 3) query, as
+    ``cKDTree(centres).query(queries, distance_upper_bound=r)`` decides it; on a grid of the centres built for this
+    one question (the KD-tree where the kernel is not built or the centres are too wide for the grid's keys)."""
+    queries = np.ascontiguousarray(queries, dtype=np.float64)
+    centres = np.ascontiguousarray(centres, dtype=np.float64)
+    if len(centres) == 0 or len(queries) == 0:
+        return np.zeros(len(queries), bool)
+    if _grid is not None and 0 < r < np.inf:
+        g = CellGrid(centres, r * (1 + 1e-9))  # a centre within r lies in the 27 cells around the query's
+        if g.usable:
+            return g.nearest(queries, r * r, first=True)[1] >= 0
+    return np.isfinite(cKDTree(centres).query(queries, distance_upper_bound=r)[0])
+
+
 class GridTree(cKDTree):
     """A ``cKDTree`` (same constructor) whose nearest-neighbour queries within a finite ``distance_upper_bound``
     run on a hashed grid of that radius (module docstring): ``query(x, distance_upper_bound=r)`` for (Q, 3) ``x``

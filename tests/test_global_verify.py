@@ -14,6 +14,25 @@ def _terms(scene, models, viol=None):
     return candidate_terms(scene, models, viol, 0.006, 0.015)
 
 
+def test_terms_are_the_brute_force_sets():
+    """On a random scene and posed samples: explained = the scene points closer than explain_radius to a sample,
+    clutter = those not explained within clutter_radius (or exactly at it) of an explained one, by all distances;
+    a candidate whose samples lie beyond every scene point explains nothing and has no clutter."""
+    from scipy.spatial.distance import cdist
+
+    rng = np.random.default_rng(3)
+    scene = rng.uniform(-0.1, 0.1, (3000, 3))
+    models = [scene[rng.choice(3000, 40)] + 0.004 * rng.normal(size=(40, 3)), np.array([[5.0, 5.0, 5.0]])]
+    t = _terms(scene, models)
+    for P, e, c in zip(models, t.explained, t.clutter):
+        want_e = np.flatnonzero(cdist(scene, P).min(axis=1) < 0.006)
+        near = (np.flatnonzero(cdist(scene, scene[want_e]).min(axis=1) <= 0.015) if len(want_e)
+                else np.zeros(0, np.int64))
+        assert np.array_equal(e, want_e) and np.array_equal(c, np.setdiff1d(near, want_e))
+    assert len(t.explained[0]) > 20 and len(t.clutter[0]) > len(t.explained[0])
+    assert len(t.explained[1]) == len(t.clutter[1]) == 0
+
+
 def test_a_model_on_part_of_an_unknown_object_is_dropped():
     """Scene: object A (a 6 cm patch) and an unknown 10 cm patch B. Candidate 0 explains A exactly; candidate 1
     explains a 4 cm corner of B and leaves the rest of B unexplained beside it. Only 0 is chosen."""

@@ -35,6 +35,27 @@ def test_grid_answers_as_the_kd_tree(rng):
         assert np.array_equal(grid.within(q, r), hit)
 
 
+def test_within_any_is_the_kd_trees_answer_on_the_grid_and_without_it(rng, monkeypatch):
+    """Whether any centre lies within r of each query, for model-like centres (a patch of the surface) and queries
+    near and far: the KD-tree's answer, on the grid of the centres and with the kernel taken away; no centres or no
+    queries give all False / an empty answer; centres too wide for the grid's keys at this radius fall back."""
+    import pcdet.grid as grid
+
+    pts = _surface(rng)
+    centres = pts[(pts[:, 0] < 0.2) & (pts[:, 1] < 0.2)][::3]
+    q = np.vstack([pts[::5], rng.uniform(-0.1, 0.6, (5000, 3))])
+    for r in (0.006, np.nextafter(0.015, np.inf)):
+        want = np.isfinite(cKDTree(centres).query(q, distance_upper_bound=r)[0])
+        assert 0.02 < want.mean() < 0.9
+        assert np.array_equal(grid.within_any(q, centres, r), want)
+        with monkeypatch.context() as m:
+            m.setattr(grid, "_grid", None)
+            assert np.array_equal(grid.within_any(q, centres, r), want)
+    assert not grid.within_any(q, centres[:0], 0.01).any() and len(grid.within_any(q[:0], centres, 0.01)) == 0
+    wide = np.array([[0.0, 0.0, 0.0], [3e4, 0.0, 0.0]])  # 2^20 cells of 3 cm either side of 0 do not reach
+    assert grid.within_any(np.array([[0.01, 0, 0], [0.05, 0, 0]]), wide, 0.03).tolist() == [True, False]
+
+
 def test_grid_keeps_the_kd_tree_strict_bound_at_the_cell_faces(rng):
     """Points on a lattice of the cell's width, each moved by a multiple of 2^-12 m (so every sum below is exact),
     and queries the radius (0.25 m) away from some of them along an axis, on cell faces and corners: the same
