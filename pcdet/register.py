@@ -18,7 +18,7 @@ from .blas import on_one_blas_thread
 from .cloud import diameter as cloud_diameter
 from .cloud import outward_normals, voxel_downsample
 from .config import PipelineConfig, RefineConfig
-from .errors import InputError
+from .errors import ConfigError, InputError
 from .features import fpfh
 from .grid import GridTree
 from .grouping import GROUPERS, make_grouper
@@ -28,6 +28,7 @@ from .keypoints import select_keypoints
 from .lrf import shot_lrf
 from .matching import match_features
 from .model import ObjectModel
+from .params import check_positive
 from .prepared_model import PreparedModel
 from .refine import RegistrationResult, icp, icp_many
 from .scene import SceneKeypoints
@@ -71,6 +72,15 @@ class RegisterConfig:
     alternatives: int = 5
     icp_iterations: int = 50
     seed: int = 0
+
+    def __post_init__(self):
+        if self.voxel is not None and not 0 < self.voxel < np.inf:
+            raise ConfigError(f"RegisterConfig.voxel must be > 0 (m) or None, got {self.voxel!r}")
+        if self.k is not None and not self.k >= 1:
+            raise ConfigError(f"RegisterConfig.k must be >= 1 or None, got {self.k!r}")
+        check_positive(self, "iterations", "alternatives")
+        if not self.icp_iterations >= 0:
+            raise ConfigError(f"RegisterConfig.icp_iterations must be >= 0, got {self.icp_iterations!r}")
 
 
 @dataclass

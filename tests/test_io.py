@@ -54,6 +54,10 @@ def test_bop_csv_errors_name_the_file_and_line(tmp_path):
                  "1,0,1,x,1 0 0,0 0 1,-1\n")
     with pytest.raises(InputError, match=r"r\.csv: line 3: malformed row"):
         read_results_csv(p)
+    p.write_text("scene_id,im_id,obj_id,score,R,t,time\n1,2,3\n")  # a row cut short
+    with pytest.raises(InputError, match=r"r\.csv: line 2: the row ends before column\(s\) score, R, t; expected "
+                                         r"scene_id,im_id,obj_id,score,R,t,time"):
+        read_results_csv(p)
     p.write_text("scene_id,im_id,score\n")
     with pytest.raises(InputError, match=r"lacks column\(s\) \['R', 'obj_id', 't'\]"):
         read_results_csv(p)

@@ -149,3 +149,14 @@ def test_two_fragments_of_a_room_register_from_any_starting_pose():
         rms = np.sqrt(np.mean(np.sum((src @ (T[:3, :3] - ref[:3, :3]).T + (T[:3, 3] - ref[:3, 3])) ** 2, axis=1)))
         angle = np.degrees(np.arccos(np.clip((np.trace(ref[:3, :3].T @ T[:3, :3]) - 1) / 2, -1, 1)))
         assert rms < 0.02 and angle < 1.0, f"{rms * 1000:.1f} mm RMS, {angle:.2f} deg from ICP's reference"
+
+
+@pytest.mark.parametrize("field, value", [("voxel", 0.0), ("voxel", -1.0), ("voxel", float("nan")), ("k", 0),
+                                          ("iterations", 0), ("alternatives", 0), ("icp_iterations", -1)])
+def test_settings_out_of_range_are_refused_naming_the_field(field, value):
+    """A voxel of 0 or below (it was taken as the default, or ended in 'too few points after sampling at -1 m'),
+    no candidates, no draws: a ``ConfigError`` naming the field and the value, before any file is read."""
+    from pcdet.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=rf"RegisterConfig\.{field} must be .*got {value!r}"):
+        RegisterConfig(**{field: value})

@@ -83,6 +83,10 @@ def read_results_csv(path) -> list[dict]:
         if missing:
             raise InputError(f"BOP results CSV lacks column(s) {sorted(missing)}", path)
         for n, row in enumerate(r, start=2):
+            short = [k for k in RESULTS_HEADER[:6] if row.get(k) is None]
+            if short:
+                raise InputError(f"line {n}: the row ends before column(s) {', '.join(short)}; expected "
+                                 f"{','.join(RESULTS_HEADER)}", path)
             try:
                 R = np.array(row["R"].split(), float).reshape(3, 3)
                 t = np.array(row["t"].split(), float).reshape(3)
