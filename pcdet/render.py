@@ -98,11 +98,12 @@ class MeshCaster:
     @staticmethod
     def _rays(camera: Camera, T_cam_mesh: np.ndarray, pixels: np.ndarray) -> np.ndarray:
         """(N, 6) float32 rays of flat ``pixels`` in the mesh frame, for the mesh at ``T_cam_mesh``."""
-        rays = camera_rays(camera, pixels).astype(np.float64)
+        d = camera_rays(camera, pixels)[:, 3:].astype(np.float64)
         R, t = T_cam_mesh[:3, :3], T_cam_mesh[:3, 3]
+        rays = np.empty((len(d), 6), np.float32)
         rays[:, :3] = -R.T @ t  # the camera centre in the mesh frame
-        rays[:, 3:] = rays[:, 3:] @ R  # directions rotated into the mesh frame (lengths kept: t_hit is z)
-        return rays.astype(np.float32)
+        rays[:, 3:] = d @ R  # directions rotated into the mesh frame (lengths kept: t_hit is z)
+        return rays
 
     def _cast(self, camera: Camera, T_cam_mesh: np.ndarray, pixels: np.ndarray) -> dict:
         from ._o3d import o3d

@@ -103,8 +103,7 @@ def bbox_pixels(camera: Camera, pts_cam: np.ndarray, stride: int = 1, margin: in
     u1, v1 = min(u1, camera.width - 1), min(v1, camera.height - 1)
     if u0 > u1 or v0 > v1:
         return None
-    vv, uu = np.mgrid[v0:v1 + 1:stride, u0:u1 + 1:stride]
-    return (vv * camera.width + uu).reshape(-1)
+    return (np.arange(v0, v1 + 1, stride)[:, None] * camera.width + np.arange(u0, u1 + 1, stride)).reshape(-1)
 
 
 def render_model(model: ObjectModel, T_cam_model: np.ndarray, camera: Camera, *, spacing: float = 0.004,
