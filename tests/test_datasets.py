@@ -223,3 +223,19 @@ def test_sevenscenes_bad_pose_file_names_the_file(tmp_path):
     with pytest.raises(InputError) as e:
         rec.camera_poses()
     assert "frame-000001.pose.txt" in str(e.value) and "4x4" in str(e.value)
+
+
+def test_sevenscenes_colour_as_jpg_or_as_3dmatch_png(tmp_path):
+    """7-Scenes ships ``frame-N.color.jpg``, 3DMatch's RGB-D sequences ``frame-N.color.png``: either is the frame's
+    colour (the JPG where both are), and one whose size differs from the depth's is left out."""
+    for i in (0, 1, 2):
+        write_depth_png(tmp_path / f"frame-{i:06d}.depth.png", np.full((48, 64), 1500, np.uint16))
+    write_png(tmp_path / "frame-000000.color.png", np.full((48, 64, 3), (200, 10, 10), np.uint8))
+    write_png(tmp_path / "frame-000001.color.png", np.full((24, 32, 3), 50, np.uint8))
+    write_png(tmp_path / "frame-000002.color.png", np.full((48, 64, 3), 50, np.uint8))
+    write_png(tmp_path / "frame-000002.color.jpg", np.full((48, 64, 3), (10, 200, 10), np.uint8))
+    rec = open_recording(tmp_path)
+    f0, f1, f2 = (rec.frame(ref) for ref in rec.images)
+    assert f0.rgb is not None and tuple(f0.rgb[5, 5]) == (200, 10, 10)
+    assert f1.rgb is None
+    assert f2.rgb is not None and f2.rgb[5, 5, 1] > 150  # the JPG's green, not the PNG's grey

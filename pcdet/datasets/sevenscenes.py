@@ -1,8 +1,9 @@
 """The 7-Scenes / 3DMatch RGB-D layout (Shotton et al. 2013; Zeng et al. 2017): one sequence per folder,
-``frame-XXXXXX.depth.png`` (uint16 millimetres; 0 or 65535 = no reading), ``frame-XXXXXX.color.jpg`` and
-``frame-XXXXXX.pose.txt`` (4x4 camera-to-world, metres), with the intrinsics in ``camera-intrinsics.txt`` (a 3x3
-K) in the folder or its parent; 7-Scenes ships none, so without that file the Kinect default it documents is used
-(fx = fy = 585, cx = 320, cy = 240). The image size comes from the first depth PNG.
+``frame-XXXXXX.depth.png`` (uint16 millimetres; 0 or 65535 = no reading), ``frame-XXXXXX.color.jpg`` (7-Scenes)
+or ``frame-XXXXXX.color.png`` (3DMatch) and ``frame-XXXXXX.pose.txt`` (4x4 camera-to-world, metres), with the
+intrinsics in ``camera-intrinsics.txt`` (a 3x3 K) in the folder or its parent; 7-Scenes ships none, so without
+that file the Kinect default it documents is used (fx = fy = 585, cx = 320, cy = 240). The image size comes from
+the first depth PNG.
 
 The folder given is one sequence (``chess/seq-01``) or a scene whose sequences are its ``seq-NN`` subfolders
 (``chess``, as both datasets ship them); sequence NN is then scene NN, each with its own trajectory.
@@ -83,13 +84,11 @@ class SevenScenesRecording(SequenceBase):
         return str(self._path(ref, "depth.png"))
 
     def frame(self, ref: FrameRef) -> Frame:
-        """The frame (depth in metres, 65535 read as no depth; colour when its size matches)."""
+        """The frame (depth in metres, 65535 read as no depth; colour, ``.color.jpg`` or else ``.color.png``, when
+        its size matches the depth's)."""
         camera = self._cameras[ref.scene_id]
-        rgb = self._path(ref, "color.jpg")
-        if rgb.is_file():
-            w, h = image_size(rgb)
-            rgb = rgb if (w, h) == (camera.width, camera.height) else None
-        else:
+        rgb = next((p for p in (self._path(ref, "color.jpg"), self._path(ref, "color.png")) if p.is_file()), None)
+        if rgb is not None and image_size(rgb) != (camera.width, camera.height):
             rgb = None
         f = Frame.from_depth_png(self.source(ref), camera, rgb_path=rgb,
                                  info={"scene_id": ref.scene_id, "im_id": ref.im_id,
