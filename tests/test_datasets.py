@@ -239,3 +239,27 @@ def test_sevenscenes_colour_as_jpg_or_as_3dmatch_png(tmp_path):
     assert f0.rgb is not None and tuple(f0.rgb[5, 5]) == (200, 10, 10)
     assert f1.rgb is None
     assert f2.rgb is not None and f2.rgb[5, 5, 1] > 150  # the JPG's green, not the PNG's grey
+
+
+def test_bop_depth_and_grey_as_tiff(tmp_path):
+    """A BOP split whose images are 16-bit TIFFs (ITODD ships ``depth/*.tif`` and ``gray/*.tif``): the YCB-V frame
+    with its depth PNG rewritten as a TIFF and its colour as a grey TIFF reads the same depth, in metres."""
+    from PIL import Image
+
+    from pcdet.io.depth import read_depth_png
+
+    src = shared("ycbv_frame")
+    shutil.copytree(src / "test", tmp_path / "test")
+    scene = tmp_path / "test" / "000001"
+    raw = read_depth_png(scene / "depth" / "000001.png")
+    (scene / "depth" / "000001.png").unlink()
+    Image.fromarray(raw).save(scene / "depth" / "000001.tif")
+    shutil.rmtree(scene / "rgb")
+    (scene / "gray").mkdir()
+    Image.fromarray(np.full(raw.shape, 128, np.uint8)).save(scene / "gray" / "000001.tif")
+    want = open_recording(src)
+    rec = open_recording(tmp_path)
+    f, g = rec.frame(rec.images[0]), want.frame(want.images[0])
+    assert rec.source(rec.images[0]).endswith("depth/000001.tif")
+    assert np.array_equal(f.depth, g.depth) and 0.3 < np.median(f.depth[f.depth > 0]) < 2.0
+    assert f.rgb is not None and f.rgb.shape[:2] == raw.shape

@@ -1,5 +1,6 @@
-"""BOP datasets (https://bop.felk.cvut.cz): ``<root>/<split>/<scene>/{depth,rgb}/<im>.png`` with
-``scene_camera.json``, ``scene_gt.json`` (poses in mm) and ``<root>/models/``."""
+"""BOP datasets (https://bop.felk.cvut.cz): ``<root>/<split>/<scene>/{depth,rgb}/<im>.png`` (depth also ``.tif``;
+colour also ``.jpg``, or grey in ``gray/``) with ``scene_camera.json``, ``scene_gt.json`` (poses in mm) and
+``<root>/models/``."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -94,8 +95,11 @@ class BopDataset:
         return self._json[key]
 
     def depth_path(self, img: BopImage) -> Path:
-        """The depth PNG of an image."""
-        return self.scene_dir(img.scene_id) / "depth" / f"{img.im_id:06d}.png"
+        """The depth image of an image: ``depth/<im>.png``, or ``depth/<im>.tif`` where only that exists (ITODD's
+        16-bit TIFFs)."""
+        png = self.scene_dir(img.scene_id) / "depth" / f"{img.im_id:06d}.png"
+        tif = png.with_suffix(".tif")
+        return tif if not png.is_file() and tif.is_file() else png
 
     def rgb_path(self, img: BopImage) -> Path | None:
         """The colour (or grey) image of an image, or None when the dataset has none."""
