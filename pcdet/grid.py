@@ -112,16 +112,26 @@ def components(points: np.ndarray, tolerance: float) -> np.ndarray | None:
 def within_any(queries: np.ndarray, centres: np.ndarray, r: float) -> np.ndarray:
     """(Q,) bool: whether any of the (C, 3) ``centres`` lies within ``r`` m (d < r) of each (Q, 3) query, as
     ``cKDTree(centres).query(queries, distance_upper_bound=r)`` decides it; on a grid of the centres built for this
-    one question (the KD-tree where the kernel is not built or the centres are too wide for the grid's keys)."""
-    queries = np.ascontiguousarray(queries, dtype=np.float64)
+    one question (the KD-tree where the kernel is not built or the centres are too wide for the grid's keys), for the
+    queries in the centres' box alone."""
+    queries = np.asarray(queries, dtype=np.float64)
     centres = np.ascontiguousarray(centres, dtype=np.float64)
+    out = np.zeros(len(queries), bool)
     if len(centres) == 0 or len(queries) == 0:
-        return np.zeros(len(queries), bool)
+        return out
+    # only the queries in the centres' box grown by r can have one within r (a whole frame asked about one object);
+    # grown a hair more, so that rounding in the box's bounds drops none the exact test would keep
+    lo, hi = centres.min(axis=0) - r * (1 + 1e-9), centres.max(axis=0) + r * (1 + 1e-9)
+    box = np.flatnonzero((queries[:, 0] >= lo[0]) & (queries[:, 0] <= hi[0]) & (queries[:, 1] >= lo[1])
+                         & (queries[:, 1] <= hi[1]) & (queries[:, 2] >= lo[2]) & (queries[:, 2] <= hi[2]))
+    q = np.ascontiguousarray(queries[box])
     if _grid is not None and 0 < r < np.inf:
         g = CellGrid(centres, r * (1 + 1e-9))  # a centre within r lies in the 27 cells around the query's
         if g.usable:
-            return g.nearest(queries, r * r, first=True)[1] >= 0
-    return np.isfinite(cKDTree(centres).query(queries, distance_upper_bound=r)[0])
+            out[box] = g.nearest(q, r * r, first=True)[1] >= 0
+            return out
+    out[box] = np.isfinite(cKDTree(centres).query(q, distance_upper_bound=r)[0])
+    return out
 
 
 class GridTree(cKDTree):

@@ -13,12 +13,11 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..align import kabsch_batch, transform
 from ..errors import ConfigError
 from ..graph import common_neighbours
-from ..grid import GridTree
+from ..grid import GridTree, within_any
 from ..matching import Candidates
 from ..pairs import scene_pairs
 from ..params import check_positive, param
@@ -32,6 +31,8 @@ from .common import (
 from .hypothesis import Hypothesis
 
 if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
+
     from ..prepared_model import PreparedModel
     from ..scene import SceneKeypoints
     from . import GroupingConfig
@@ -115,9 +116,8 @@ class RansacGrouper:
                 Tb, inl = found[0]
                 active[inl] = False
                 # clear the surface the best pose explains (in every cluster: active is shared)
-                d, _ = cKDTree(transform(Tb, m.points)).query(scene.points,
-                                                              distance_upper_bound=2 * self.common.inlier_distance)
-                active &= ~np.repeat(np.isfinite(d), k)
+                near = within_any(scene.points, transform(Tb, m.points), 2 * self.common.inlier_distance)
+                active &= ~np.repeat(near, k)
         return out
 
     def _one_instance(self, g: "_Graph", active: np.ndarray, diameter: float, rng: np.random.Generator,
