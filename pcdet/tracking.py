@@ -17,8 +17,12 @@ The world frame is the first camera's. Frame by frame:
   4. the instances seen in this frame correct the camera pose: the rigid fit of their model points as observed
      onto the same points in the map (objects do not move, so any disagreement is camera drift). Instances whose
      map pose is set in this frame (new tracks, replaced map poses) take no part in it; they are mapped from the
-     corrected pose. The corrected pose goes back to the odometry.
-Every track keeps its per-frame world pose estimate (corrected camera pose x observed object pose).
+     corrected pose. The corrected pose goes back to the odometry;
+  5. each instance seen reports the mean of its world poses observed (corrected camera pose x observed object
+     pose) since its map pose was set, seen from the corrected camera: the object does not move, so the mean of
+     its views is a better estimate of where it is than any one of them (one ICP that slid along a near-symmetric
+     part moves it by a fraction). The map pose itself stays as set: predictions start from it.
+Every track keeps its per-frame world pose estimate (the observed pose of step 5).
 
 ``track_into`` writes what detection writes (a detections JSON per frame as it is done, ``results.csv`` rebuilt
 from them) plus ``tracks.json``, and checkpoints the tracker after every frame, so that a killed run resumes
@@ -28,7 +32,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -36,11 +40,12 @@ import numpy as np
 from .align import kabsch, transform
 from .detector import Detection, DetectionResult, Detector
 from .frame import Frame
-from .errors import InputError
+from .errors import ConfigError, InputError
 from .io.atomic import atomic_write_bytes, atomic_write_text
 from .metrics import add
 from .odometry import Odometry, OdometryConfig
 from .odometry_run import relocalise
+from .params import check_positive
 
 
 @dataclass(frozen=True)
@@ -76,27 +81,56 @@ class TrackingConfig:
         method="icp", icp_voxel=0.02, pixel_stride=2, keyframe_distance=0.0, keyframe_angle_deg=0.0, keyframes=1,
         icp_kernel=2.0))
 
+    def __post_init__(self):
+        check_positive(self, "associate_distance", "reanchor_distance", "crop_margin")
+        if self.redetect_every < 0:
+            raise ConfigError(f"TrackingConfig.redetect_every must be >= 0, got {self.redetect_every}")
+        if not 0 <= self.min_score <= 1:
+            raise ConfigError(f"TrackingConfig.min_score must lie in [0, 1], got {self.min_score}")
+
 
 @dataclass
 class Track:
-    """One object instance: its map pose ``T_world_model`` (4, 4, m) and, per frame it was seen in, the world
-    pose estimate, the verification score and how it was found ("detect" or "track")."""
+    """One object instance: its map pose ``T_world_model`` (4, 4, m), which predictions start from and the camera
+    is corrected against; ``T_world_fused``, the mean of the ``fused`` world poses observed since the map pose was
+    last set from a detection (``observe``), which is what the track reports; and, per frame it was seen in, the
+    world pose observed, the verification score and how it was found ("detect" or "track")."""
 
     id: int
     model: str
     obj_id: int
     model_index: int
     T_world_model: np.ndarray
+    T_world_fused: np.ndarray | None = None
+    fused: int = 0
     frames: list[int] = field(default_factory=list)
     poses: list[np.ndarray] = field(default_factory=list)
     scores: list[float] = field(default_factory=list)
     modes: list[str] = field(default_factory=list)
     lost: bool = False
 
+    def observe(self, T_world_model: np.ndarray, *, anchor: bool = False) -> None:
+        """Fuse one observed world pose (4, 4) into ``T_world_fused``: the running mean, translations averaged and
+        rotations by their chordal mean (the rotation nearest the sum of the matrices, the mean so far weighing
+        ``fused``). With ``anchor`` the observation also sets the map pose, and the mean starts again from it."""
+        T = np.asarray(T_world_model, float)
+        if anchor:
+            self.T_world_model = T.copy()
+        if anchor or self.fused == 0:
+            self.T_world_fused, self.fused = T.copy(), 1
+            return
+        n, F = self.fused, self.T_world_fused
+        U, _, Vt = np.linalg.svd(n * F[:3, :3] + T[:3, :3])
+        M = np.eye(4)
+        M[:3, :3] = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+        M[:3, 3] = (n * F[:3, 3] + T[:3, 3]) / (n + 1)
+        self.T_world_fused, self.fused = M, n + 1
+
     def to_dict(self) -> dict:
         """The track as tracks.json stores it (poses rounded to 1e-9)."""
         return {"id": self.id, "model": self.model, "obj_id": self.obj_id,
                 "T_world_model": np.round(self.T_world_model, 9).tolist(),
+                "T_world_fused": None if self.T_world_fused is None else np.round(self.T_world_fused, 9).tolist(),
                 "observations": [{"frame": f, "T_world_model": np.round(T, 9).tolist(), "score": round(s, 6),
                                   "mode": m} for f, T, s, m in zip(self.frames, self.poses, self.scores,
                                                                    self.modes)]}
@@ -151,14 +185,16 @@ class Tracker:
             if anchored:
                 T_wc = self._correct_camera(anchored, T_wc)
             self.odo.reset(T_wc)
-        for tr, T_cm, score, _ in obs:
-            if tr.id in mapped:
-                tr.T_world_model = T_wc @ T_cm
+        T_input_world = frame.T_input_cam @ np.linalg.inv(T_wc)
+        self.last_detections = []
+        for tr, T_cm, score, d in obs:
+            tr.observe(T_wc @ T_cm, anchor=tr.id in mapped)
             tr.frames.append(self.index)
             tr.poses.append(T_wc @ T_cm)
             tr.scores.append(score)
             tr.modes.append(mode)
-        self.last_detections = [d for *_, d in obs]
+            # the frame's pose of a static object: the mean of its views since its map pose was set, seen from here
+            self.last_detections.append(replace(d, T_cam_model=T_input_world @ tr.T_world_fused))
         self._unconfirmed = self.cfg.confirm and bool(mapped)
         return T_wc, mode
 

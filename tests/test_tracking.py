@@ -45,6 +45,12 @@ def test_objects_stay_within_5mm_of_the_truth_in_every_frame(recording, library)
         assert len(t.frames) >= 15
         err = [np.linalg.norm(T[:3, 3] - pos[f]) for f, T in zip(t.frames, t.poses)]
         assert max(err) < 0.005, (t.model, max(err))
+        # what the last frame reports (results.csv): the mean of the track's views seen from the corrected camera
+        last = t.frames[-1]
+        d = next(d for d in res.detections[last] if d.obj_id == t.obj_id)
+        want = rec.frame(list(rec)[last]).T_input_cam @ np.linalg.inv(res.camera_poses[last]) @ t.T_world_fused
+        np.testing.assert_allclose(d.T_cam_model, want, atol=1e-9)
+        assert t.fused >= 2
 
 
 def test_a_wrong_map_pose_is_replaced_by_the_next_better_detection(recording, library):
@@ -203,3 +209,32 @@ def test_the_tracker_relocalises_a_camera_beyond_its_icp_reach(library):
             trk.odo = Odometry(trk.cfg.odometry)  # no relocalise: the coarse-to-fine ICP alone
         ate[name] = ate_rmse([trk.step(f)[0] for f in frames], gt)
     assert ate["without"] > 0.1 and ate["with"] < 0.04, ate
+
+
+def _pose(rotvec, t):
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
+    T[:3, 3] = t
+    return T
+
+
+def test_a_track_reports_the_running_mean_of_its_views_since_its_map_pose_was_set():
+    """``Track.observe``: the fused pose is the mean of the views (translations averaged; the rotation the chordal
+    mean, which for turns about one axis is the mean angle to within 1e-3 rad at these spreads), the map pose stays
+    the first view's, and a view that anchors sets both and starts the mean again."""
+    from pcdet.tracking import Track
+
+    tr = Track(1, "part", 1, 0, np.eye(4))
+    angles = [0.10, 0.14, 0.06, 0.12]
+    for i, a in enumerate(angles):
+        tr.observe(_pose([0, 0, a], [0.1 * i, 0, 0.5]), anchor=i == 0)
+    assert tr.fused == 4
+    np.testing.assert_allclose(tr.T_world_fused[:3, 3], [0.15, 0, 0.5], atol=1e-12)
+    got = np.arctan2(tr.T_world_fused[1, 0], tr.T_world_fused[0, 0])
+    assert abs(got - np.mean(angles)) < 1e-3
+    np.testing.assert_allclose(tr.T_world_model, _pose([0, 0, 0.10], [0, 0, 0.5]), atol=1e-12)
+    np.testing.assert_allclose(tr.T_world_fused[:3, :3] @ tr.T_world_fused[:3, :3].T, np.eye(3), atol=1e-12)
+    tr.observe(_pose([0, 0.2, 0], [1, 2, 3]), anchor=True)
+    assert tr.fused == 1 and np.array_equal(tr.T_world_fused, tr.T_world_model)
