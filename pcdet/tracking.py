@@ -103,6 +103,7 @@ class Track:
     T_world_model: np.ndarray
     T_world_fused: np.ndarray | None = None
     fused: int = 0
+    pose_sum: np.ndarray | None = None
     frames: list[int] = field(default_factory=list)
     poses: list[np.ndarray] = field(default_factory=list)
     scores: list[float] = field(default_factory=list)
@@ -110,21 +111,26 @@ class Track:
     lost: bool = False
 
     def observe(self, T_world_model: np.ndarray, *, anchor: bool = False) -> None:
-        """Fuse one observed world pose (4, 4) into ``T_world_fused``: the running mean, translations averaged and
-        rotations by their chordal mean (the rotation nearest the sum of the matrices, the mean so far weighing
-        ``fused``). With ``anchor`` the observation also sets the map pose, and the mean starts again from it."""
+        """Fuse one observed world pose (4, 4) into ``T_world_fused``, the mean of the ``fused`` poses (their sum
+        in ``pose_sum``): translations averaged, rotations by their chordal mean (the rotation nearest the sum of
+        the rotation matrices). With ``anchor`` the observation also sets the map pose, and the mean starts again
+        from it."""
         T = np.asarray(T_world_model, float)
         if anchor:
             self.T_world_model = T.copy()
         if anchor or self.fused == 0:
-            self.T_world_fused, self.fused = T.copy(), 1
+            self.pose_sum, self.fused = T.copy(), 0
+        else:
+            self.pose_sum = self.pose_sum + T
+        self.fused += 1
+        if self.fused == 1:
+            self.T_world_fused = T.copy()
             return
-        n, F = self.fused, self.T_world_fused
-        U, _, Vt = np.linalg.svd(n * F[:3, :3] + T[:3, :3])
+        U, _, Vt = np.linalg.svd(self.pose_sum[:3, :3])
         M = np.eye(4)
         M[:3, :3] = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-        M[:3, 3] = (n * F[:3, 3] + T[:3, 3]) / (n + 1)
-        self.T_world_fused, self.fused = M, n + 1
+        M[:3, 3] = self.pose_sum[:3, 3] / self.fused
+        self.T_world_fused = M
 
     def to_dict(self) -> dict:
         """The track as tracks.json stores it (poses rounded to 1e-9)."""

@@ -221,20 +221,22 @@ def _pose(rotvec, t):
 
 
 def test_a_track_reports_the_running_mean_of_its_views_since_its_map_pose_was_set():
-    """``Track.observe``: the fused pose is the mean of the views (translations averaged; the rotation the chordal
-    mean, which for turns about one axis is the mean angle to within 1e-3 rad at these spreads), the map pose stays
-    the first view's, and a view that anchors sets both and starts the mean again."""
+    """``Track.observe``: the fused pose is the mean of the views, translations averaged and the rotation their
+    chordal mean (scipy's ``Rotation.mean``, to 1e-9); the map pose stays the first view's; a view that anchors sets
+    both and starts the mean again."""
+    from scipy.spatial.transform import Rotation
+
     from pcdet.tracking import Track
 
+    rng = np.random.default_rng(5)
+    views = [_pose(0.1 * rng.normal(size=3), [0.1 * i, 0, 0.5]) for i in range(5)]
     tr = Track(1, "part", 1, 0, np.eye(4))
-    angles = [0.10, 0.14, 0.06, 0.12]
-    for i, a in enumerate(angles):
-        tr.observe(_pose([0, 0, a], [0.1 * i, 0, 0.5]), anchor=i == 0)
-    assert tr.fused == 4
-    np.testing.assert_allclose(tr.T_world_fused[:3, 3], [0.15, 0, 0.5], atol=1e-12)
-    got = np.arctan2(tr.T_world_fused[1, 0], tr.T_world_fused[0, 0])
-    assert abs(got - np.mean(angles)) < 1e-3
-    np.testing.assert_allclose(tr.T_world_model, _pose([0, 0, 0.10], [0, 0, 0.5]), atol=1e-12)
-    np.testing.assert_allclose(tr.T_world_fused[:3, :3] @ tr.T_world_fused[:3, :3].T, np.eye(3), atol=1e-12)
+    for i, T in enumerate(views):
+        tr.observe(T, anchor=i == 0)
+    assert tr.fused == 5
+    np.testing.assert_allclose(tr.T_world_fused[:3, 3], [0.2, 0, 0.5], atol=1e-12)
+    want = Rotation.from_matrix(np.stack([T[:3, :3] for T in views])).mean().as_matrix()
+    np.testing.assert_allclose(tr.T_world_fused[:3, :3], want, atol=1e-9)
+    assert np.array_equal(tr.T_world_model, views[0])
     tr.observe(_pose([0, 0.2, 0], [1, 2, 3]), anchor=True)
     assert tr.fused == 1 and np.array_equal(tr.T_world_fused, tr.T_world_model)
