@@ -14,7 +14,8 @@ digits (1e-7 m over the 300 frames).
 
 The grid runs a compiled kernel (``pcdet/_grid.c``, built by ``setup.py`` where a C compiler is at hand); without
 it every query is the KD-tree's. The same grid (``CellGrid``) links a cloud's points into Euclidean clusters
-(``components``, the pairs ``cKDTree.query_pairs`` returns) and finds FPFH's neighbours (``features.fpfh``). On the
+(``components``, the pairs ``cKDTree.query_pairs`` returns), finds FPFH's neighbours (``features.fpfh``) and tells
+which scene points lie near a posed model (``within_any``, for global verification and RANSAC). On the
 queries of two real 8-object frames (31,000-38,000 scene points), the
 overlap ranking's 1.06 million (is a point within 7.5 mm?) took 0.23-0.26 s against the KD-tree's 0.42-0.43 s, and
 ICP's 0.65 million (the nearest within 12 mm) 0.24-0.31 s against 0.53-0.60 s.
