@@ -52,7 +52,8 @@ def test_within_any_is_the_kd_trees_answer_on_the_grid_and_without_it(rng, monke
             m.setattr(grid, "_grid", None)
             assert np.array_equal(grid.within_any(q, centres, r), want)
     assert not grid.within_any(q, centres[:0], 0.01).any() and len(grid.within_any(q[:0], centres, 0.01)) == 0
-    wide = np.array([[0.0, 0.0, 0.0], [3e4, 0.0, 0.0]])  # 2^20 cells of 3 cm either side of 0 do not reach
+    wide = np.array([[0.0, 0.0, 0.0], [4e4, 0.0, 0.0]])  # 2^20 cells of 3 cm either side of 0 do not reach 40 km
+    assert not grid.CellGrid(wide, 0.03 * (1 + 1e-9)).usable
     assert grid.within_any(np.array([[0.01, 0, 0], [0.05, 0, 0]]), wide, 0.03).tolist() == [True, False]
 
 
