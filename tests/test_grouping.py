@@ -208,7 +208,7 @@ def test_hough_vote_peaks_dense_and_sparse_grids_agree(rng, monkeypatch):
         c = np.concatenate([rng.normal(0, 0.3, (2000, 3)), rng.normal(centre, 0.01, (200, 3))])
         weight = None if trial % 2 else rng.uniform(0.5, 4.0, len(c))
         monkeypatch.setattr(hough, "DENSE_CELLS", 10 ** 9)
-        dense = hough._vote_peaks(c, 0.02, 2.0, weight, use_compiled=False)
+        dense = hough._vote_peaks(c, 0.02, 2.0, weight, dense=None)
         compiled = hough._vote_peaks(c, 0.02, 2.0, weight)
         monkeypatch.setattr(hough, "DENSE_CELLS", 0)
         sparse = hough._vote_peaks(c, 0.02, 2.0, weight)
@@ -236,7 +236,7 @@ def test_hough_spun_votes_and_peak_neighbourhoods(rng):
                                     local[owner])
     np.testing.assert_allclose(hough._spun_centres(s, F, local, owner, theta), explicit, rtol=0, atol=1e-12)
     b = 0.015
-    votes = np.concatenate([rng.normal(0, 0.3, (20000, 3)), rng.normal(0.1, 0.01, (500, 3))])
+    votes = np.concatenate([rng.normal(0, 0.15, (20000, 3)), rng.normal(0.1, 0.01, (500, 3))])  # a box the kernel takes
     cells = np.array([cell for cell, _ in hough._vote_peaks(votes, b, 2.0)[:12]])
     near = hough._near_cells(votes, b, cells)
     within = np.zeros(len(votes), bool)
@@ -245,8 +245,10 @@ def test_hough_spun_votes_and_peak_neighbourhoods(rng):
     assert within.sum() > 300 and np.isin(np.flatnonzero(within), near).all()
     assert len(near) < 0.2 * len(votes)
     # each peak's voters, by the compiled kernel's buckets and by the KD-tree: every vote within 1.5 bins, ascending
-    for use_compiled in (True, False):
-        found = hough._peak_votes(votes, b, cells, use_compiled=use_compiled)
+    box = hough._dense_box(votes, b)
+    assert box is not None, "pcdet._votes was not built, or the test's votes outgrew DENSE_CELLS"
+    for dense in (box, None):
+        found = hough._peak_votes(votes, b, cells, dense=dense)
         assert len(found) == len(cells)
         for cell, idx in zip(cells, found):
             want = np.flatnonzero(np.linalg.norm(votes - (cell + 0.5) * b, axis=1) <= 1.5 * b)

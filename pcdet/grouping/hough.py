@@ -121,14 +121,15 @@ class HoughGrouper:
         else:
             owner, weight = np.arange(len(corr)), None
             centre = scene.points[si] + np.einsum("nji,nj->ni", Fs, local)  # back to the scene: F^T local
-        peaks = _vote_peaks(centre, c.bin, c.min_votes, weight)
+        dense = _dense_box(centre, c.bin)  # the grid's box, once for the sums and the voters
+        peaks = _vote_peaks(centre, c.bin, c.min_votes, weight, dense=dense)
         if not peaks:
             return []
         used = peaks[: 4 * c.max_groups]
         cos_tol, cos_apart = np.cos(np.radians(c.rotation_tol_deg)), np.cos(np.radians(2 * c.rotation_tol_deg))
         cands, group_sizes = [], []
         # voters: predicted reference points within 1.5 bins of a peak (grid index c sits at (c + 0.5) * bin)
-        near = _peak_votes(centre, c.bin, np.array([cell for cell, _ in used]))
+        near = _peak_votes(centre, c.bin, np.array([cell for cell, _ in used]), dense=dense)
         for (cell, _), votes in zip(used, near):
             peak = (cell + 0.5) * c.bin
             voters = np.unique(owner[votes])  # correspondences
@@ -232,20 +233,33 @@ def _turns(theta: np.ndarray) -> np.ndarray:
     return Rz
 
 
-def _peak_votes(centre: np.ndarray, b: float, cells: np.ndarray, *, use_compiled: bool = True) -> list[np.ndarray]:
+_FIND = object()  # a ``dense`` argument not given: the function finds it (``_dense_box``)
+
+
+def _dense_box(centre: np.ndarray, b: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The votes ``centre`` (V, 3) as the compiled kernel reads them (contiguous float64) and their grid's box of
+    cell ``b`` m (lowest cell index (3,) and cells per axis (3,), a margin of one cell round the votes), where the
+    kernel is built and the box has at most ``DENSE_CELLS`` cells; None otherwise (numpy and scipy then answer)."""
+    if _votes is None or len(centre) == 0:
+        return None
+    c = np.ascontiguousarray(centre, dtype=np.float64)
+    box = _votes.box(c, float(b))
+    lo, span = np.array(box[:3], np.int64), np.array(box[3:], np.int64)
+    return (c, lo, span) if int(np.prod(span)) <= DENSE_CELLS else None
+
+
+def _peak_votes(centre: np.ndarray, b: float, cells: np.ndarray, *, dense=_FIND) -> list[np.ndarray]:
     """For each peak of ``cells`` (P, 3) (grid indices as ``_vote_peaks`` gives them; the peak at (cell + 0.5) b),
-    the ascending indices of the votes ``centre`` (V, 3) within 1.5 ``b`` of it. The compiled kernel buckets the
-    votes by cell and looks at the cells around each peak, where the votes' box has at most ``DENSE_CELLS`` cells;
-    numpy and scipy (``use_compiled`` False, no kernel built, or a larger box) ask a KD-tree of the votes in those
-    cells (``_near_cells``). Both keep a vote at exactly 1.5 b."""
+    the ascending indices of the votes ``centre`` (V, 3) within 1.5 ``b`` of it. With a ``dense`` box
+    (``_dense_box``, found when not given) the compiled kernel buckets the votes by cell and looks at the cells
+    around each peak; otherwise (None) a KD-tree of the votes in those cells (``_near_cells``) answers. Both keep a
+    vote at exactly 1.5 b."""
     r = 1.5 * b
     peaks = (cells + 0.5) * b
-    if use_compiled and _votes is not None and len(cells):
-        c = np.ascontiguousarray(centre, dtype=np.float64)
-        box = _votes.box(c, float(b))
-        lo, span = np.array(box[:3], np.int64), np.array(box[3:], np.int64)
-        use_compiled = int(np.prod(span)) <= DENSE_CELLS  # a bucket per cell of the box
-    if use_compiled and _votes is not None and len(cells):
+    if dense is _FIND:
+        dense = _dense_box(centre, b)
+    if dense is not None and len(cells):
+        c, lo, span = dense
         out = np.frombuffer(_votes.near(c, float(b), lo, span, np.ascontiguousarray(cells, dtype=np.int64),
                                         np.ascontiguousarray(peaks, dtype=np.float64), float(r)), np.int64)
         P = len(cells)
@@ -272,24 +286,23 @@ def _near_cells(centre: np.ndarray, b: float, cells: np.ndarray) -> np.ndarray:
 
 
 def _vote_peaks(centre: np.ndarray, b: float, min_votes: float, weight: np.ndarray | None = None, *,
-                use_compiled: bool = True) -> list[tuple[np.ndarray, float]]:
+                dense=_FIND) -> list[tuple[np.ndarray, float]]:
     """Trilinear votes of the points ``centre`` (N, 3), each of ``weight`` (N,; default 1), into a grid of cell
     ``b`` m; the cells that are maxima of
     their 26-neighbourhood with at least ``min_votes``, strongest first (ties by cell index), as (cell index (3,),
     votes). The grid is dense over the votes' bounding box when that has at most ``DENSE_CELLS`` cells, else
-    sparse; both give the same peaks. A dense grid is summed by the compiled kernel (``pcdet/_votes.c``) where it
-    is built, in numpy's order, so to the bit as numpy's bincount (``use_compiled`` False: numpy)."""
+    sparse; both give the same peaks. With a ``dense`` box (``_dense_box``, found when not given) the compiled
+    kernel (``pcdet/_votes.c``) sums the grid in numpy's order, so to the bit as numpy's bincount; None: numpy."""
     if len(centre) == 0:
         return []
-    if use_compiled and _votes is not None:
-        c = np.ascontiguousarray(centre, dtype=np.float64)
-        box = _votes.box(c, float(b))
-        lo, span = np.array(box[:3], np.int64), np.array(box[3:], np.int64)
-        if int(np.prod(span)) <= DENSE_CELLS:
-            votes = np.zeros(int(np.prod(span)))
-            _votes.accumulate(c, float(b), np.zeros(0) if weight is None else np.ascontiguousarray(weight, np.float64),
-                              lo, span, votes)
-            return _dense_peaks(votes, span, lo, min_votes)
+    if dense is _FIND:
+        dense = _dense_box(centre, b)
+    if dense is not None:
+        c, lo, span = dense
+        votes = np.zeros(int(np.prod(span)))
+        _votes.accumulate(c, float(b), np.zeros(0) if weight is None else np.ascontiguousarray(weight, np.float64),
+                          lo, span, votes)
+        return _dense_peaks(votes, span, lo, min_votes)
     g = centre / b - 0.5
     base = np.floor(g).astype(np.int64)
     frac = g - base
