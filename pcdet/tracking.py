@@ -101,7 +101,6 @@ class Track:
     obj_id: int
     model_index: int
     T_world_model: np.ndarray
-    T_world_fused: np.ndarray | None = None
     fused: int = 0
     pose_sum: np.ndarray | None = None
     frames: list[int] = field(default_factory=list)
@@ -111,32 +110,35 @@ class Track:
     lost: bool = False
 
     def observe(self, T_world_model: np.ndarray, *, anchor: bool = False) -> None:
-        """Fuse one observed world pose (4, 4) into ``T_world_fused``, the mean of the ``fused`` poses (their sum
-        in ``pose_sum``): translations averaged, rotations by their chordal mean (the rotation nearest the sum of
-        the rotation matrices). With ``anchor`` the observation also sets the map pose, and the mean starts again
-        from it."""
+        """Add one observed world pose (4, 4) to the views ``T_world_fused`` averages (their sum ``pose_sum``, their
+        number ``fused``). With ``anchor`` the observation also sets the map pose, and the mean starts again from
+        it."""
         T = np.asarray(T_world_model, float)
         if anchor:
             self.T_world_model = T.copy()
         if anchor or self.fused == 0:
-            self.pose_sum, self.fused = T.copy(), 0
+            self.pose_sum, self.fused = T.copy(), 1
         else:
-            self.pose_sum = self.pose_sum + T
-        self.fused += 1
-        if self.fused == 1:
-            self.T_world_fused = T.copy()
-            return
+            self.pose_sum, self.fused = self.pose_sum + T, self.fused + 1
+
+    @property
+    def T_world_fused(self) -> np.ndarray | None:
+        """(4, 4) the mean of the views since the map pose was set: translations averaged, rotations by their
+        chordal mean (the rotation nearest the sum of the rotation matrices); a single view as it is; None before
+        any."""
+        if self.fused <= 1:
+            return None if self.pose_sum is None else self.pose_sum.copy()
         U, _, Vt = np.linalg.svd(self.pose_sum[:3, :3])
         M = np.eye(4)
         M[:3, :3] = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
         M[:3, 3] = self.pose_sum[:3, 3] / self.fused
-        self.T_world_fused = M
+        return M
 
     def to_dict(self) -> dict:
         """The track as tracks.json stores it (poses rounded to 1e-9)."""
         return {"id": self.id, "model": self.model, "obj_id": self.obj_id,
                 "T_world_model": np.round(self.T_world_model, 9).tolist(),
-                "T_world_fused": None if self.T_world_fused is None else np.round(self.T_world_fused, 9).tolist(),
+                "T_world_fused": None if self.fused == 0 else np.round(self.T_world_fused, 9).tolist(),
                 "observations": [{"frame": f, "T_world_model": np.round(T, 9).tolist(), "score": round(s, 6),
                                   "mode": m} for f, T, s, m in zip(self.frames, self.poses, self.scores,
                                                                    self.modes)]}
@@ -194,9 +196,10 @@ class Tracker:
         T_input_world = frame.T_input_cam @ np.linalg.inv(T_wc)
         self.last_detections = []
         for tr, T_cm, score, d in obs:
-            tr.observe(T_wc @ T_cm, anchor=tr.id in mapped)
+            T_wm = T_wc @ T_cm
+            tr.observe(T_wm, anchor=tr.id in mapped)
             tr.frames.append(self.index)
-            tr.poses.append(T_wc @ T_cm)
+            tr.poses.append(T_wm)
             tr.scores.append(score)
             tr.modes.append(mode)
             # the frame's pose of a static object: the mean of its views since its map pose was set, seen from here
