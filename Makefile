@@ -16,8 +16,8 @@ sysdeps:
 	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null; \
 	fi
 
-$(STAMP): pyproject.toml setup.py pcdet/_graph.c pcdet/_residuals.c pcdet/_grid.c pcdet/_fpfh.c pcdet/_align.c \
-		pcdet/_normals.c pcdet/_lrf.c pcdet/_votes.c pcdet/_cells.h pcdet/_near.h pcdet/_eigen.h
+# the kernels' sources and headers (setup.py builds every one): a new kernel needs no line here
+$(STAMP): pyproject.toml setup.py $(wildcard pcdet/_*.c pcdet/_*.h)
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[dev]'

@@ -4,9 +4,9 @@
 (the rotations of many Kabsch problems, and the greedy choice of distinct poses), ``pcdet.grid`` (the nearest point
 within a short radius, on a hashed voxel grid), ``pcdet.features`` (FPFH descriptors, their neighbours found on that
 grid), ``pcdet.cloud`` (normals, their neighbours found alike), ``pcdet.lrf`` (SHOT frames, alike) and
-``pcdet.grouping.hough`` (the votes' trilinear sums, and each peak's voters). ``optional``: where no C compiler is at hand the install goes on without them, and pcdet
-computes the same results with numpy and scipy, or with open3d: FPFH (which orders neighbours at the same distance by
-its own rule) and normals (the same axes, rounded otherwise)."""
+``pcdet.grouping.hough`` (the votes' trilinear sums, and each peak's voters). ``optional``: where no C compiler is at
+hand the install goes on without them, and pcdet computes the same results with numpy and scipy, or with open3d: FPFH
+(which orders neighbours at the same distance by its own rule) and normals (the same axes, rounded otherwise)."""
 from setuptools import Extension, setup
 
 # no fused multiply-adds: the length test must round as numpy's float32 arithmetic does (pcdet/_graph.c), the
