@@ -2,18 +2,19 @@
 
 The world frame is the first camera's. Frame by frame:
   1. camera odometry (``odometry.Odometry``) predicts ``T_world_cam``;
-  2. on the first frame, every ``redetect_every`` frames, after a track is lost and (``confirm``) on the frame
-     after a map pose was set, so that no map pose rests on one detection alone: full detection; each
-     detection joins the track of the same object whose map position is within ``associate_distance`` x the
-     model's diameter, or starts a new track; a detection that joins a track competes with the track's own
-     prediction refined as in 3, and the better verified pose is kept. A detection that wins and puts the
-     model elsewhere than the refined prediction (model samples a mean of ``reanchor_distance`` x the diameter
-     apart), or where the prediction could not be verified at all, replaces the track's map pose: the map was
-     wrong (a first detection of a near-symmetric part turned the wrong way round, which ICP from the map pose
-     keeps finding again);
+  2. on the first frame, every ``redetect_every`` frames, (``confirm``) on the frame after a map pose was set, so
+     that no map pose rests on one detection alone, and in a frame where tracking (3) fails, a track lost or every
+     instance seen in the frame before predicted out of view (the camera moved further than odometry followed),
+     that same frame: full detection; each detection joins the track of the same object whose map position is
+     within ``associate_distance`` x the model's diameter, or starts a new track; a detection that joins a track
+     competes with the track's own prediction refined as in 3, and the better verified pose is kept. A detection
+     that wins and puts the model elsewhere than the refined prediction (model samples a mean of
+     ``reanchor_distance`` x the diameter apart), or where the prediction could not be verified at all, replaces
+     the track's map pose: the map was wrong (a first detection of a near-symmetric part turned the wrong way
+     round, which ICP from the map pose keeps finding again);
   3. otherwise each mapped instance in view is refined by ICP from its predicted pose (map pose seen from the
      predicted camera), on the depth pixels around it only, and checked against the depth (``verify``); a score
-     below ``min_score`` marks it lost;
+     below ``min_score`` marks it lost, and the frame goes to full detection (2);
   4. the instances seen in this frame correct the camera pose: the rigid fit of their model points as observed
      onto the same points in the map (objects do not move, so any disagreement is camera drift). Instances whose
      map pose is set in this frame (new tracks, replaced map poses) take no part in it; they are mapped from the
@@ -50,7 +51,7 @@ from .params import check_positive
 
 @dataclass(frozen=True)
 class TrackingConfig:
-    """redetect_every: full detection every N frames besides the first and after a loss (0: only then);
+    """redetect_every: full detection every N frames besides the first and where tracking fails (0: only then);
     min_score: verification score a tracked pose must keep; associate_distance: x model diameter;
     reanchor_distance: x model diameter, mean distance of the model samples between a better-verified detection and
     the track's refined prediction above which the detection replaces the track's map pose (step 2 of the module
@@ -175,6 +176,7 @@ class Tracker:
         self.index = -1
         self.last_detections: list[Detection] = []
         self._unconfirmed = False  # a map pose was set from one detection in the last frame
+        self._seen = False  # the last frame saw an object
 
     def step(self, frame: Frame) -> tuple[np.ndarray, str]:
         """Process the next frame: returns (corrected T_world_cam, "detect" or "track")."""
@@ -182,12 +184,16 @@ class Tracker:
         T_wc = self.odo.step(frame)
         due = self.cfg.redetect_every > 0 and self.index % self.cfg.redetect_every == 0
         mapped: set[int] = set()  # ids of the tracks whose map pose this frame sets
-        if self.index == 0 or due or self._unconfirmed or any(t.lost for t in self.tracks):
-            obs, mapped = self._detect(frame, T_wc)
-            mode = "detect"
-        else:
-            obs = self._track(frame, T_wc)
+        mode = "detect"
+        if not (self.index == 0 or due or self._unconfirmed):
+            obs, in_view = self._track(frame, T_wc)
             mode = "track"
+            # tracking failed in this frame: a track lost, or every object seen in the last frame gone from view at
+            # once (the camera moved further than odometry followed): detect in this frame, not the next
+            if any(t.lost for t in self.tracks) or (self._seen and not in_view):
+                mode = "detect"
+        if mode == "detect":
+            obs, mapped = self._detect(frame, T_wc)
         if obs:
             anchored = [o for o in obs if o[0].id not in mapped]
             if anchored:
@@ -205,6 +211,7 @@ class Tracker:
             # the frame's pose of a static object: the mean of its views since its map pose was set, seen from here
             self.last_detections.append(replace(d, T_cam_model=T_input_world @ tr.T_world_fused))
         self._unconfirmed = self.cfg.confirm and bool(mapped)
+        self._seen = bool(obs)
         return T_wc, mode
 
     def _detect(self, frame: Frame, T_wc: np.ndarray
@@ -251,19 +258,23 @@ class Tracker:
         pm = self.det.models[model_index]
         return add(A, B, pm.icp_points) > self.cfg.reanchor_distance * pm.model.diameter
 
-    def _track(self, frame: Frame, T_wc: np.ndarray) -> list[tuple[Track, np.ndarray, float, Detection]]:
+    def _track(self, frame: Frame, T_wc: np.ndarray) -> tuple[list[tuple[Track, np.ndarray, float, Detection]], int]:
+        """Each mapped instance refined from its prediction (step 3 of the module docstring): the observations
+        (track, T_cam_model, score, detection) and how many instances were predicted in view; a track whose
+        refined pose fails is marked lost."""
         T_cw = np.linalg.inv(T_wc)
         T_cam_input = np.linalg.inv(frame.T_input_cam)
-        obs = []
+        obs, in_view = [], 0
         for tr in self.tracks:
             r = self.det.refine(frame, tr.model_index, T_cw @ tr.T_world_model, depth_margin=self.cfg.crop_margin)
             if not r.in_view:
                 continue  # nothing to say about it here
+            in_view += 1
             if r.detection is None or r.detection.score < self.cfg.min_score:
                 tr.lost = True
                 continue
             obs.append((tr, T_cam_input @ r.detection.T_cam_model, float(r.detection.score), r.detection))
-        return obs
+        return obs, in_view
 
     def _correct_camera(self, obs, T_wc: np.ndarray) -> np.ndarray:
         """The camera pose that best maps the observed objects onto the map: Kabsch on their model samples."""
@@ -325,7 +336,7 @@ class Tracker:
             raise InputError("tracking with KISS-ICP odometry cannot be checkpointed (its state cannot be saved); "
                              "use odometry method 'icp'")
         return pickle.dumps({"odo": self.odo, "tracks": self.tracks, "index": self.index, "result": result,
-                             "unconfirmed": self._unconfirmed}, protocol=4)
+                             "unconfirmed": self._unconfirmed, "seen": self._seen}, protocol=4)
 
     def restore(self, state: bytes) -> TrackingResult:
         """Continue from ``state(result)``: odometry, tracks, frame index and a confirming detection due, as they
@@ -335,6 +346,7 @@ class Tracker:
         d = pickle.loads(state)
         self.odo, self.tracks, self.index = d["odo"], d["tracks"], d["index"]
         self._unconfirmed = d.get("unconfirmed", False)
+        self._seen = d.get("seen", False)
         return d["result"]
 
 

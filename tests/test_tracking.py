@@ -240,3 +240,29 @@ def test_a_track_reports_the_running_mean_of_its_views_since_its_map_pose_was_se
     assert np.array_equal(tr.T_world_model, views[0])
     tr.observe(_pose([0, 0.2, 0], [1, 2, 3]), anchor=True)
     assert tr.fused == 1 and np.array_equal(tr.T_world_fused, tr.T_world_model)
+
+
+def test_where_tracking_loses_the_camera_the_same_frame_is_detected():
+    """The last 10 of the 40 real LINEMOD cat frames, each 30 frames of the sequence after the one before (the
+    camera moves 30-106 cm and turns 18-98 degrees between them), tracked with the cat's own model: the tracker's
+    frame-to-frame odometry does not follow such steps, so the cat is predicted out of view or its refined pose
+    fails. Tracking then runs full detection in that same frame, and reports the cat within ADD 0.1 d in at least
+    9 of the 10 frames, as detection alone does (10 measured; before, a frame where tracking failed reported
+    nothing, and only a loss made the next frame detect: 7 of 10)."""
+    from pcdet.library import ModelLibrary
+    from pcdet.metrics import add
+
+    from .conftest import shared
+
+    data = shared("linemod_cat")
+    rec = open_recording(data)
+    det = Detector(ModelLibrary.from_folder(data / "models"))
+    cat = det.library[det.library.index_of(6)]
+    trk = Tracker(det, TrackingConfig())
+    found, modes = 0, []
+    for ref in list(rec)[-10:]:
+        modes.append(trk.step(rec.frame(ref))[1])
+        T = next(g["T_cam_model"] for g in rec.gt(ref) if g["obj_id"] == 6)
+        found += any(d.obj_id == 6 and add(d.T_cam_model, T, cat.points) < 0.1 * cat.diameter
+                     for d in trk.last_detections)
+    assert found >= 9, (found, modes)
