@@ -5,8 +5,9 @@ The world frame is the first camera's. Frame by frame:
   2. on the first frame, every ``redetect_every`` frames, (``confirm``) on the frame after a map pose was set, so
      that no map pose rests on one detection alone, and in a frame where tracking (3) fails, a track lost or every
      instance seen in the frame before predicted out of view (the camera moved further than odometry followed),
-     that same frame: full detection; each detection joins the track of the same object whose map position is
-     within ``associate_distance`` x the model's diameter, or starts a new track; a detection that joins a track
+     that same frame: full detection. The camera is first relocalised on the mapped objects where they put it
+     better than odometry did (``Tracker._relocalised``); then each detection joins the track of the same object
+     whose map position is within ``associate_distance`` x the model's diameter, or starts a new track; a detection that joins a track
      competes with the track's own prediction refined as in 3, and the better verified pose is kept. A detection
      that wins and puts the model elsewhere than the refined prediction (model samples a mean of
      ``reanchor_distance`` x the diameter apart), or where the prediction could not be verified at all, replaces
@@ -193,7 +194,7 @@ class Tracker:
             if any(t.lost for t in self.tracks) or (self._seen and not in_view):
                 mode = "detect"
         if mode == "detect":
-            obs, mapped = self._detect(frame, T_wc)
+            obs, mapped, T_wc = self._detect(frame, T_wc)
         if obs:
             anchored = [o for o in obs if o[0].id not in mapped]
             if anchored:
@@ -215,19 +216,21 @@ class Tracker:
         return T_wc, mode
 
     def _detect(self, frame: Frame, T_wc: np.ndarray
-                ) -> tuple[list[tuple[Track, np.ndarray, float, Detection]], set[int]]:
+                ) -> tuple[list[tuple[Track, np.ndarray, float, Detection]], set[int], np.ndarray]:
         """Full detection (step 2 of the module docstring): the observations (track, T_cam_model, score,
-        detection) and the ids of the tracks whose map pose is to be set from this frame."""
+        detection), the ids of the tracks whose map pose is to be set from this frame, and the camera pose
+        ``T_wc`` (4, 4), relocalised on the mapped objects where they put it better (``_relocalised``)."""
         res = self.det.detect(frame)
         obs = []
         used: set[int] = set()
         mapped: set[int] = set()
         T_cam_input = np.linalg.inv(frame.T_input_cam)
+        seen = [(d, T_cam_input @ d.T_cam_model) for d in res.detections]
+        T_wc = self._relocalised(seen, T_wc)
         T_cw = np.linalg.inv(T_wc)
-        for d in res.detections:
+        for d, T_cm in seen:
             mi = self.det.library.index_of(d.obj_id)
             m = self.det.library[mi]
-            T_cm = T_cam_input @ d.T_cam_model
             T_wm = T_wc @ T_cm
             best, best_d = None, self.cfg.associate_distance * m.diameter
             for tr in self.tracks:
@@ -250,7 +253,35 @@ class Tracker:
             obs.append((best, T_cm, float(d.score), d))
         for tr in self.tracks:
             tr.lost = False  # a full detection settles every loss: missing objects simply are not in view
-        return obs, mapped
+        return obs, mapped, T_wc
+
+    def _near_tracks(self, seen: list[tuple[Detection, np.ndarray]], T_wc: np.ndarray) -> int:
+        """How many of the detections ``seen`` ((detection, T_cam_model) pairs) lie, from camera ``T_wc`` (4, 4),
+        within ``associate_distance`` x their model's diameter of a track of their object."""
+        n = 0
+        for d, T_cm in seen:
+            p = T_wc[:3, :3] @ T_cm[:3, 3] + T_wc[:3, 3]
+            reach = self.cfg.associate_distance * self.det.library[self.det.library.index_of(d.obj_id)].diameter
+            n += any(tr.obj_id == d.obj_id and np.linalg.norm(tr.T_world_model[:3, 3] - p) < reach
+                     for tr in self.tracks)
+        return n
+
+    def _relocalised(self, seen: list[tuple[Detection, np.ndarray]], T_wc: np.ndarray) -> np.ndarray:
+        """The camera pose (4, 4) as the mapped objects put it: of the odometry's ``T_wc`` and each pose that lays
+        one detection of ``seen`` exactly onto a track of its object (the objects do not move), the one under
+        which most detections fall near tracks of their objects (``_near_tracks``); the odometry's unless another
+        does better (where odometry followed the camera, every detection of a mapped object already does), the
+        first found among equals. Where the camera moved further than odometry followed, the detections would
+        otherwise start new tracks beside the old ones, and the map and the camera would stay wrong."""
+        best, most = T_wc, self._near_tracks(seen, T_wc)
+        for d, T_cm in seen:
+            for tr in self.tracks:
+                if tr.obj_id == d.obj_id:
+                    C = tr.T_world_model @ np.linalg.inv(T_cm)
+                    n = self._near_tracks(seen, C)
+                    if n > most:
+                        best, most = C, n
+        return best
 
     def _apart(self, model_index: int, A: np.ndarray, B: np.ndarray) -> bool:
         """Whether poses A and B (4, 4) of a model put its samples a mean of more than ``reanchor_distance`` x

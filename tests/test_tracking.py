@@ -242,13 +242,16 @@ def test_a_track_reports_the_running_mean_of_its_views_since_its_map_pose_was_se
     assert tr.fused == 1 and np.array_equal(tr.T_world_fused, tr.T_world_model)
 
 
-def test_where_tracking_loses_the_camera_the_same_frame_is_detected():
+def test_where_tracking_loses_the_camera_the_same_frame_is_detected_and_the_objects_relocalise_it():
     """The last 10 of the 40 real LINEMOD cat frames, each 30 frames of the sequence after the one before (the
     camera moves 30-106 cm and turns 18-98 degrees between them), tracked with the cat's own model: the tracker's
     frame-to-frame odometry does not follow such steps, so the cat is predicted out of view or its refined pose
     fails. Tracking then runs full detection in that same frame, and reports the cat within ADD 0.1 d in at least
     9 of the 10 frames, as detection alone does (10 measured; before, a frame where tracking failed reported
-    nothing, and only a loss made the next frame detect: 7 of 10)."""
+    nothing, and only a loss made the next frame detect: 7 of 10). The detection puts the camera where the mapped
+    cat says it is, so the cat keeps one track and the camera stays within 0.1 m of the truth in every frame (62.5
+    mm at most measured; before, each detection far from the odometry's guess started a track of its own, 3-4
+    tracks, and the camera ended 0.5-1.9 m off)."""
     from pcdet.library import ModelLibrary
     from pcdet.metrics import add
 
@@ -259,10 +262,14 @@ def test_where_tracking_loses_the_camera_the_same_frame_is_detected():
     det = Detector(ModelLibrary.from_folder(data / "models"))
     cat = det.library[det.library.index_of(6)]
     trk = Tracker(det, TrackingConfig())
-    found, modes = 0, []
+    found, modes, off = 0, [], []
+    T0 = None
     for ref in list(rec)[-10:]:
-        modes.append(trk.step(rec.frame(ref))[1])
+        T_wc, mode = trk.step(rec.frame(ref))
+        modes.append(mode)
         T = next(g["T_cam_model"] for g in rec.gt(ref) if g["obj_id"] == 6)
+        T0 = T if T0 is None else T0
+        off.append(float(np.linalg.norm(T_wc[:3, 3] - (T0 @ np.linalg.inv(T))[:3, 3])))  # world: the first camera
         found += any(d.obj_id == 6 and add(d.T_cam_model, T, cat.points) < 0.1 * cat.diameter
                      for d in trk.last_detections)
-    assert found >= 9, (found, modes)
+    assert found >= 9 and len(trk.tracks) == 1 and max(off) < 0.1, (found, len(trk.tracks), off, modes)
