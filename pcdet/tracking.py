@@ -7,12 +7,12 @@ The world frame is the first camera's. Frame by frame:
      instance seen in the frame before predicted out of view (the camera moved further than odometry followed),
      that same frame: full detection. The camera is first relocalised on the mapped objects where they put it
      better than odometry did (``Tracker._relocalised``); then each detection joins the track of the same object
-     whose map position is within ``associate_distance`` x the model's diameter, or starts a new track; a detection that joins a track
-     competes with the track's own prediction refined as in 3, and the better verified pose is kept. A detection
-     that wins and puts the model elsewhere than the refined prediction (model samples a mean of
-     ``reanchor_distance`` x the diameter apart), or where the prediction could not be verified at all, replaces
-     the track's map pose: the map was wrong (a first detection of a near-symmetric part turned the wrong way
-     round, which ICP from the map pose keeps finding again);
+     whose map position is within ``associate_distance`` x the model's diameter, or starts a new track; a
+     detection that joins a track competes with the track's own prediction refined as in 3, and the better
+     verified pose is kept. A detection that wins and puts the model elsewhere than the refined prediction (model
+     samples a mean of ``reanchor_distance`` x the diameter apart), or where the prediction could not be verified
+     at all, replaces the track's map pose: the map was wrong (a first detection of a near-symmetric part turned
+     the wrong way round, which ICP from the map pose keeps finding again);
   3. otherwise each mapped instance in view is refined by ICP from its predicted pose (map pose seen from the
      predicted camera), on the depth pixels around it only, and checked against the depth (``verify``); a score
      below ``min_score`` marks it lost, and the frame goes to full detection (2);
@@ -358,9 +358,9 @@ class Tracker:
         return res
 
     def state(self, result: TrackingResult) -> bytes:
-        """The tracker's state (odometry, tracks, frame index, whether a detection is due to confirm map poses)
-        and ``result`` so far, as bytes for ``restore``; the detector is not part of it. KISS-ICP's state cannot be
-        saved, so trackers whose odometry uses it cannot checkpoint."""
+        """The tracker's state (odometry, tracks, frame index, whether a detection is due to confirm map poses,
+        whether the last frame saw an object) and ``result`` so far, as bytes for ``restore``; the detector is not
+        part of it. KISS-ICP's state cannot be saved, so trackers whose odometry uses it cannot checkpoint."""
         import pickle
 
         if self.odo.kiss is not None:
@@ -370,8 +370,8 @@ class Tracker:
                              "unconfirmed": self._unconfirmed, "seen": self._seen}, protocol=4)
 
     def restore(self, state: bytes) -> TrackingResult:
-        """Continue from ``state(result)``: odometry, tracks, frame index and a confirming detection due, as they
-        were; returns the result so far, to hand to ``run``."""
+        """Continue from ``state(result)``: odometry, tracks, frame index, a confirming detection due and whether
+        the last frame saw an object, as they were; returns the result so far, to hand to ``run``."""
         import pickle
 
         d = pickle.loads(state)
