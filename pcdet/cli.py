@@ -140,10 +140,11 @@ def run(recording: Path = typer.Argument(..., help="Recording or dataset folder:
                                        "result files are removed first)."),
         track: bool = typer.Option(False, help="Track objects through the recording (full detection on the "
                                    "first frame, on the frame after a map pose was set, every --redetect-every "
-                                   "frames and after a loss; ICP from the predicted pose between); writes "
+                                   "frames and where tracking fails; ICP from the predicted pose between); writes "
                                    "results.csv, frames/ and tracks.json, and resumes with --resume."),
         redetect_every: int = typer.Option(15, help="With --track: full detection every N frames (0: only on "
-                                           "the first frames, to confirm new map poses and after a loss)."),
+                                           "the first frames, to confirm new map poses and where tracking "
+                                           "fails)."),
         workers: int = typer.Option(1, help="Processes to spread frames (with --track: scenes) over; with "
                                     "--executor ray, the CPUs of a local Ray instance."),
         threads: Optional[int] = typer.Option(None, help="Detector threads when --workers is 1 (default: the "
