@@ -389,7 +389,7 @@ def frames_by_scene(rec) -> dict[int, list]:
     return out
 
 
-class _Scene:
+class SceneFrames:
     """The frames of one scene of a recording, as a recording of its own (what ``Tracker.run`` reads)."""
 
     def __init__(self, rec, refs):
@@ -407,7 +407,7 @@ class _Scene:
 
 def _track_chunk(shared, refs) -> TrackingResult:
     rec, library, cfg, tcfg = shared
-    return Tracker(Detector(library, cfg, workers=1), tcfg).run(_Scene(rec, refs))
+    return Tracker(Detector(library, cfg, workers=1), tcfg).run(SceneFrames(rec, refs))
 
 
 def write_tracks_json(path, rec, results: dict[int, TrackingResult], pipeline: dict, version: str) -> Path:
@@ -432,7 +432,7 @@ def track_recording(rec, library, cfg, tcfg: TrackingConfig | None = None, *, wo
     tcfg = tcfg or TrackingConfig()
     scenes = frames_by_scene(rec)
     if executor == "local" and (workers <= 1 or len(scenes) < 2):
-        return {sid: Tracker(Detector(library, cfg), tcfg).run(_Scene(rec, refs), on_frame)
+        return {sid: Tracker(Detector(library, cfg), tcfg).run(SceneFrames(rec, refs), on_frame)
                 for sid, refs in scenes.items()}
     results = map_chunks(_track_chunk, (rec, library, cfg, tcfg), list(scenes.values()), workers=workers,
                          executor=executor, ray_address=ray_address)
@@ -472,7 +472,7 @@ def track_into(rec, library, cfg, out, tcfg: TrackingConfig | None = None, *, re
             write_tracked_frame(out, rec, ref, res, i, pipeline=pipeline, version=version)
             atomic_write_bytes(ck, trk.state(res))
 
-        results[sid] = tracker.run(_Scene(rec, refs), on_frame, checkpoint=checkpoint, result=partial)
+        results[sid] = tracker.run(SceneFrames(rec, refs), on_frame, checkpoint=checkpoint, result=partial)
     write_tracking_outputs(out, rec, results, cfg, version=version, record_time=record_time)
     return results
 

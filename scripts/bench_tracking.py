@@ -35,7 +35,7 @@ from pcdet.detector import Detector
 from pcdet.library import ModelLibrary
 from pcdet.metrics import add
 from pcdet.synth import SynthConfig, synthesize
-from pcdet.tracking import Tracker, TrackingConfig, frames_by_scene
+from pcdet.tracking import SceneFrames, Tracker, TrackingConfig, frames_by_scene
 from pcdet.trajectory import ate_rmse
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -53,22 +53,6 @@ def _runs(frames: list[int]) -> str:
     return ", ".join(out)
 
 
-class _Frames:
-    """Some frames of a recording, as a recording of their own (what ``Tracker.run`` reads)."""
-
-    def __init__(self, rec, refs):
-        self.rec, self.refs = rec, list(refs)
-
-    def __iter__(self):
-        return iter(self.refs)
-
-    def __len__(self) -> int:
-        return len(self.refs)
-
-    def frame(self, ref):
-        return self.rec.frame(ref)
-
-
 def real(data: Path, redetect_every: int, seed: int) -> None:
     """Tracking against detection alone on a real recording (``--data``; the module docstring)."""
     rec = open_recording(data)
@@ -78,7 +62,7 @@ def real(data: Path, redetect_every: int, seed: int) -> None:
     gts = {r: rec.gt(r) for r in refs}
     runs = {}
     t0 = time.perf_counter()
-    res = Tracker(Detector(lib, cfg), TrackingConfig(redetect_every=redetect_every)).run(_Frames(rec, refs))
+    res = Tracker(Detector(lib, cfg), TrackingConfig(redetect_every=redetect_every)).run(SceneFrames(rec, refs))
     runs["tracking (pcdet run --track)"] = (res.detections, time.perf_counter() - t0, res)
     det = Detector(lib, cfg)
     t0 = time.perf_counter()
