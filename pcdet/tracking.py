@@ -390,7 +390,8 @@ def frames_by_scene(rec) -> dict[int, list]:
 
 
 class SceneFrames:
-    """The frames of one scene of a recording, as a recording of its own (what ``Tracker.run`` reads)."""
+    """The frames ``refs`` (frame refs of ``rec``, in order) of one scene of a recording ``rec``, as a recording of
+    their own (what ``Tracker.run`` reads)."""
 
     def __init__(self, rec, refs):
         self.rec, self.images = rec, list(refs)
@@ -402,6 +403,7 @@ class SceneFrames:
         return len(self.images)
 
     def frame(self, ref):
+        """The recording's ``Frame`` of ``ref``."""
         return self.rec.frame(ref)
 
 
