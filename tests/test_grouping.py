@@ -209,9 +209,9 @@ def test_hough_vote_peaks_dense_and_sparse_grids_agree(rng, monkeypatch):
         weight = None if trial % 2 else rng.uniform(0.5, 4.0, len(c))
         monkeypatch.setattr(hough, "DENSE_CELLS", 10 ** 9)
         dense = hough._vote_peaks(c, 0.02, 2.0, weight, dense=None)
-        compiled = hough._vote_peaks(c, 0.02, 2.0, weight)
+        compiled = hough._vote_peaks(c, 0.02, 2.0, weight, dense=hough._dense_box(c, 0.02))
         monkeypatch.setattr(hough, "DENSE_CELLS", 0)
-        sparse = hough._vote_peaks(c, 0.02, 2.0, weight)
+        sparse = hough._vote_peaks(c, 0.02, 2.0, weight, dense=hough._dense_box(c, 0.02))
         assert len(dense) == len(sparse) == len(compiled) > 0
         for (a, va), (b, vb), (e, ve) in zip(dense, sparse, compiled):
             assert (a == b).all() and (a == e).all() and va == vb == ve
@@ -237,7 +237,7 @@ def test_hough_spun_votes_and_peak_neighbourhoods(rng):
     np.testing.assert_allclose(hough._spun_centres(s, F, local, owner, theta), explicit, rtol=0, atol=1e-12)
     b = 0.015
     votes = np.concatenate([rng.normal(0, 0.15, (20000, 3)), rng.normal(0.1, 0.01, (500, 3))])  # a box the kernel takes
-    cells = np.array([cell for cell, _ in hough._vote_peaks(votes, b, 2.0)[:12]])
+    cells = np.array([cell for cell, _ in hough._vote_peaks(votes, b, 2.0, dense=hough._dense_box(votes, b))[:12]])
     near = hough._near_cells(votes, b, cells)
     within = np.zeros(len(votes), bool)
     for cell in cells:

@@ -233,9 +233,6 @@ def _turns(theta: np.ndarray) -> np.ndarray:
     return Rz
 
 
-_FIND = object()  # a ``dense`` argument not given: the function finds it (``_dense_box``)
-
-
 def _dense_box(centre: np.ndarray, b: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The votes ``centre`` (V, 3) as the compiled kernel reads them (contiguous float64) and their grid's box of
     cell ``b`` m (lowest cell index (3,) and cells per axis (3,), a margin of one cell round the votes), where the
@@ -248,16 +245,14 @@ def _dense_box(centre: np.ndarray, b: float) -> tuple[np.ndarray, np.ndarray, np
     return (c, lo, span) if int(np.prod(span)) <= DENSE_CELLS else None
 
 
-def _peak_votes(centre: np.ndarray, b: float, cells: np.ndarray, *, dense=_FIND) -> list[np.ndarray]:
+def _peak_votes(centre: np.ndarray, b: float, cells: np.ndarray, *, dense) -> list[np.ndarray]:
     """For each peak of ``cells`` (P, 3) (grid indices as ``_vote_peaks`` gives them; the peak at (cell + 0.5) b),
     the ascending indices of the votes ``centre`` (V, 3) within 1.5 ``b`` of it. With a ``dense`` box
-    (``_dense_box``, found when not given) the compiled kernel buckets the votes by cell and looks at the cells
+    (``_dense_box`` of the same votes) the compiled kernel buckets the votes by cell and looks at the cells
     around each peak; otherwise (None) a KD-tree of the votes in those cells (``_near_cells``) answers. Both keep a
     vote at exactly 1.5 b."""
     r = 1.5 * b
     peaks = (cells + 0.5) * b
-    if dense is _FIND:
-        dense = _dense_box(centre, b)
     if dense is not None and len(cells):
         c, lo, span = dense
         out = np.frombuffer(_votes.near(c, float(b), lo, span, np.ascontiguousarray(cells, dtype=np.int64),
@@ -286,17 +281,15 @@ def _near_cells(centre: np.ndarray, b: float, cells: np.ndarray) -> np.ndarray:
 
 
 def _vote_peaks(centre: np.ndarray, b: float, min_votes: float, weight: np.ndarray | None = None, *,
-                dense=_FIND) -> list[tuple[np.ndarray, float]]:
+                dense) -> list[tuple[np.ndarray, float]]:
     """Trilinear votes of the points ``centre`` (N, 3), each of ``weight`` (N,; default 1), into a grid of cell
     ``b`` m; the cells that are maxima of
     their 26-neighbourhood with at least ``min_votes``, strongest first (ties by cell index), as (cell index (3,),
     votes). The grid is dense over the votes' bounding box when that has at most ``DENSE_CELLS`` cells, else
-    sparse; both give the same peaks. With a ``dense`` box (``_dense_box``, found when not given) the compiled
+    sparse; both give the same peaks. With a ``dense`` box (``_dense_box`` of the same votes) the compiled
     kernel (``pcdet/_votes.c``) sums the grid in numpy's order, so to the bit as numpy's bincount; None: numpy."""
     if len(centre) == 0:
         return []
-    if dense is _FIND:
-        dense = _dense_box(centre, b)
     if dense is not None:
         c, lo, span = dense
         votes = np.zeros(int(np.prod(span)))
