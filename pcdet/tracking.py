@@ -177,7 +177,6 @@ class Tracker:
         self.index = -1
         self.last_detections: list[Detection] = []
         self._unconfirmed = False  # a map pose was set from one detection in the last frame
-        self._seen = False  # the last frame saw an object
 
     def step(self, frame: Frame) -> tuple[np.ndarray, str]:
         """Process the next frame: returns (corrected T_world_cam, "detect" or "track")."""
@@ -187,11 +186,12 @@ class Tracker:
         mapped: set[int] = set()  # ids of the tracks whose map pose this frame sets
         mode = "detect"
         if not (self.index == 0 or due or self._unconfirmed):
+            seen_last = any(t.frames and t.frames[-1] == self.index - 1 for t in self.tracks)
             obs, in_view = self._track(frame, T_wc)
             mode = "track"
             # tracking failed in this frame: a track lost, or every object seen in the last frame gone from view at
             # once (the camera moved further than odometry followed): detect in this frame, not the next
-            if any(t.lost for t in self.tracks) or (self._seen and not in_view):
+            if any(t.lost for t in self.tracks) or (seen_last and not in_view):
                 mode = "detect"
         if mode == "detect":
             obs, mapped, T_wc = self._detect(frame, T_wc)
@@ -212,7 +212,6 @@ class Tracker:
             # the frame's pose of a static object: the mean of its views since its map pose was set, seen from here
             self.last_detections.append(replace(d, T_cam_model=T_input_world @ tr.T_world_fused))
         self._unconfirmed = self.cfg.confirm and bool(mapped)
-        self._seen = bool(obs)
         return T_wc, mode
 
     def _detect(self, frame: Frame, T_wc: np.ndarray
@@ -232,11 +231,7 @@ class Tracker:
             mi = self.det.library.index_of(d.obj_id)
             m = self.det.library[mi]
             T_wm = T_wc @ T_cm
-            best, best_d = None, self.cfg.associate_distance * m.diameter
-            for tr in self.tracks:
-                dist = np.linalg.norm(tr.T_world_model[:3, 3] - T_wm[:3, 3])
-                if tr.obj_id == d.obj_id and tr.id not in used and dist < best_d:
-                    best, best_d = tr, dist
+            best = self._nearest_track(d.obj_id, T_wm[:3, 3], used)
             if best is None:
                 best = Track(len(self.tracks) + 1, m.name, m.obj_id, mi, T_wm)
                 self.tracks.append(best)
@@ -255,16 +250,20 @@ class Tracker:
             tr.lost = False  # a full detection settles every loss: missing objects simply are not in view
         return obs, mapped, T_wc
 
+    def _nearest_track(self, obj_id: int, p: np.ndarray, taken: set[int] | frozenset = frozenset()) -> Track | None:
+        """The track of object ``obj_id`` whose map position lies nearest the world position ``p`` (3,, m), within
+        ``associate_distance`` x the model's diameter and not among the ids ``taken``; None where there is none."""
+        best, best_d = None, self.cfg.associate_distance * self.det.library[self.det.library.index_of(obj_id)].diameter
+        for tr in self.tracks:
+            dist = np.linalg.norm(tr.T_world_model[:3, 3] - p)
+            if tr.obj_id == obj_id and tr.id not in taken and dist < best_d:
+                best, best_d = tr, dist
+        return best
+
     def _near_tracks(self, seen: list[tuple[Detection, np.ndarray]], T_wc: np.ndarray) -> int:
-        """How many of the detections ``seen`` ((detection, T_cam_model) pairs) lie, from camera ``T_wc`` (4, 4),
-        within ``associate_distance`` x their model's diameter of a track of their object."""
-        n = 0
-        for d, T_cm in seen:
-            p = T_wc[:3, :3] @ T_cm[:3, 3] + T_wc[:3, 3]
-            reach = self.cfg.associate_distance * self.det.library[self.det.library.index_of(d.obj_id)].diameter
-            n += any(tr.obj_id == d.obj_id and np.linalg.norm(tr.T_world_model[:3, 3] - p) < reach
-                     for tr in self.tracks)
-        return n
+        """How many of the detections ``seen`` ((detection, T_cam_model) pairs) would join a track (``_nearest_track``)
+        from camera ``T_wc`` (4, 4)."""
+        return sum(self._nearest_track(d.obj_id, (T_wc @ T_cm)[:3, 3]) is not None for d, T_cm in seen)
 
     def _relocalised(self, seen: list[tuple[Detection, np.ndarray]], T_wc: np.ndarray) -> np.ndarray:
         """The camera pose (4, 4) as the mapped objects put it: of the odometry's ``T_wc`` and each pose that lays
@@ -274,6 +273,8 @@ class Tracker:
         first found among equals. Where the camera moved further than odometry followed, the detections would
         otherwise start new tracks beside the old ones, and the map and the camera would stay wrong."""
         best, most = T_wc, self._near_tracks(seen, T_wc)
+        if most == len(seen):  # every detection joins a track already: no camera can do better
+            return best
         for d, T_cm in seen:
             for tr in self.tracks:
                 if tr.obj_id == d.obj_id:
@@ -358,26 +359,25 @@ class Tracker:
         return res
 
     def state(self, result: TrackingResult) -> bytes:
-        """The tracker's state (odometry, tracks, frame index, whether a detection is due to confirm map poses,
-        whether the last frame saw an object) and ``result`` so far, as bytes for ``restore``; the detector is not
-        part of it. KISS-ICP's state cannot be saved, so trackers whose odometry uses it cannot checkpoint."""
+        """The tracker's state (odometry, tracks, frame index, whether a detection is due to confirm map poses)
+        and ``result`` so far, as bytes for ``restore``; the detector is not part of it. KISS-ICP's state cannot be
+        saved, so trackers whose odometry uses it cannot checkpoint."""
         import pickle
 
         if self.odo.kiss is not None:
             raise InputError("tracking with KISS-ICP odometry cannot be checkpointed (its state cannot be saved); "
                              "use odometry method 'icp'")
         return pickle.dumps({"odo": self.odo, "tracks": self.tracks, "index": self.index, "result": result,
-                             "unconfirmed": self._unconfirmed, "seen": self._seen}, protocol=4)
+                             "unconfirmed": self._unconfirmed}, protocol=4)
 
     def restore(self, state: bytes) -> TrackingResult:
-        """Continue from ``state(result)``: odometry, tracks, frame index, a confirming detection due and whether
-        the last frame saw an object, as they were; returns the result so far, to hand to ``run``."""
+        """Continue from ``state(result)``: odometry, tracks, frame index and a confirming detection due, as they
+        were; returns the result so far, to hand to ``run``."""
         import pickle
 
         d = pickle.loads(state)
         self.odo, self.tracks, self.index = d["odo"], d["tracks"], d["index"]
         self._unconfirmed = d.get("unconfirmed", False)
-        self._seen = d.get("seen", False)
         return d["result"]
 
 
