@@ -1,9 +1,10 @@
 """The detector: the only place that knows the order of the stages.
 
 preprocess -> keypoints -> features (a ``Scene``) -> matching and grouping per model (a ``Grouper`` from the
-registry, on ``PreparedModel`` s; once per family of look-alikes, whose members take the raw poses) -> a quick
-look at each raw pose -> ICP on the best few per model -> verification -> one size per spot among look-alikes ->
-selection (global or by threshold).
+registry, on ``PreparedModel`` s; once per family of look-alikes) -> a quick look at each raw pose -> a short
+coarse ICP for the best raw poses of each grouped model -> each model (each member of a family, from its
+representative's coarse poses) refined by ICP at its best few -> verification -> one size per spot among
+look-alikes -> selection (global or by threshold).
 """
 from __future__ import annotations
 
@@ -409,12 +410,17 @@ class Detector:
             for i in by_model[m]:
                 h = raw[i]
                 if m != h.model_index:
-                    rep = self.models[h.model_index]
-                    h = Hypothesis(m, transfer(h.T_scene_model, rep.reference, self.models[m].reference), h.inliers,
-                                   h.group)
+                    h = Hypothesis(m, self._as_member(h.T_scene_model, h.model_index, m), h.inliers, h.group)
                 hyps.append(h)
                 source.append(i)
         return hyps, source
+
+    def _as_member(self, T_scene_model: np.ndarray, model_index: int, member: int) -> np.ndarray:
+        """(4, 4) pose of the look-alike ``member`` where the model at ``model_index`` is posed at ``T_scene_model``
+        (``look_alikes.transfer``; the pose itself when ``member`` is that model)."""
+        if member == model_index:
+            return T_scene_model
+        return transfer(T_scene_model, self.models[model_index].reference, self.models[member].reference)
 
     def _library_index(self, models: list[PreparedModel]) -> LibraryIndex:
         """The descriptor index over ``models``, built on first use for each set of models searched."""
@@ -628,30 +634,44 @@ class Detector:
             looks = dict(zip(used, self._verify_poses(frame, scene, [(raw[i].model_index, raw[i].T_scene_model)
                                                                     for i in used], stride=2)))
             pre = [looks[i] for i in source]
-        # a short coarse ICP for the best raw hypotheses of each model, then the full ICP for the best few
+        # a short coarse ICP for the best raw hypotheses of each grouped model (a family of look-alikes: of its
+        # representative, whose coarse pose and look every member then takes), then the full ICP for the best few
+        # of each model
         rc = cfg.refine
-        plausible = [j for j, v in enumerate(pre) if v.score >= cfg.verify.prefilter and v.n_supported > 0]
-        start = {j: hyps[j].T_scene_model for j in plausible}
-        look = pre
+        plausible = [i for i in used if looks[i].score >= cfg.verify.prefilter and looks[i].n_supported > 0]
+        start = {i: raw[i].T_scene_model for i in plausible}
         if rc.candidates > 0:
             # raw poses on distinct spots first: near-copies of one pose would all slide to the same place,
             # and the budget would go to one instance of a crowded scene (or to one box turned every way); with
             # targets, at ``places`` places at least, as the full ICPs below: a place that no coarse ICP reaches
             # cannot be refined fully there either
-            coarse = _spread_per_model(plausible, pre, hyps, start, self.models, rc.candidates, spots=spots,
+            raw_spots = None
+            if spots is not None:
+                raw_spots = {}
+                for mi, n in spots.items():
+                    rep = self._family[mi].representative
+                    raw_spots[rep] = max(n, raw_spots.get(rep, 0))
+            coarse = _spread_per_model(plausible, looks, raw, start, self.models, rc.candidates, spots=raw_spots,
                                        places=0 if spots is None else rc.places)
             with tm("refine"):
-                moved = self._coarse_icp(scene, [(hyps[j].model_index, hyps[j].T_scene_model) for j in coarse])
+                moved = self._coarse_icp(scene, [(raw[i].model_index, raw[i].T_scene_model) for i in coarse])
             with tm("verify"):
-                second = self._verify_poses(frame, scene, [(hyps[j].model_index, T) for j, T in zip(coarse, moved)],
+                second = self._verify_poses(frame, scene, [(raw[i].model_index, T) for i, T in zip(coarse, moved)],
                                             stride=2)
             # the coarse ICP can also slide a good raw pose onto a neighbour: keep whichever looks better
-            look = {j: (v if v.score >= pre[j].score else pre[j]) for j, v in zip(coarse, second)}
-            start = {j: (T if second[n].score >= pre[j].score else hyps[j].T_scene_model)
-                     for n, (j, T) in enumerate(zip(coarse, moved))}
-            plausible = [j for j in coarse if look[j].n_supported > 0]
+            better = [v.score >= looks[i].score for i, v in zip(coarse, second)]
+            looks = {i: (v if b else looks[i]) for i, v, b in zip(coarse, second, better)}
+            start = {i: (T if b else raw[i].T_scene_model) for i, T, b in zip(coarse, moved, better)}
+            plausible = [i for i in coarse if looks[i].n_supported > 0]
             if trace is not None:
-                trace.coarse = coarse
+                given = set(coarse)
+                trace.coarse = [j for j in range(len(hyps)) if source[j] in given]
+        # each searched model takes the coarse poses of the raw hypotheses it came from
+        reached = set(plausible)
+        plausible = [j for j in range(len(hyps)) if source[j] in reached]
+        look = {j: looks[source[j]] for j in plausible}
+        start = {j: self._as_member(start[source[j]], raw[source[j]].model_index, hyps[j].model_index)
+                 for j in plausible}
         # the full ICP for the best few per model, on distinct spots first; candidates that converged onto the
         # same pose are one (the best-looking of them)
         keep = sorted(_spread_per_model(plausible, look, hyps, start, self.models, rc.max_per_model, spots=spots,

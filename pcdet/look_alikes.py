@@ -1,10 +1,11 @@
 """Look-alike models: the same shape at other sizes (a product line in several sizes, a part and its scaled
 copies), found once when the detector is built.
 
-The detector groups correspondences once per family, for its representative, and every member takes the
-representative's raw poses (``transfer``): look-alikes match the same scene keypoints, so grouping each of them
-on its own repeats the same work. Each member is then refined and verified on its own, which is where the size
-is told apart.
+The detector groups correspondences once per family, for its representative, and gives the representative's
+best raw poses their short coarse ICP: look-alikes match the same scene keypoints and slide to the same places, so
+doing either for each of them repeats the same work, and gives clutter one more chance per size to look like the
+shape. Every member takes the representative's coarse poses (``transfer``) and is then refined by the full ICP
+and verified on its own, which is where the size is told apart.
 
 Two models are look-alikes when, each centred on its bounding box in its own frame and scaled to the smaller
 one's size, their surface samples lie within ``distance`` of each other on average (both ways), and their

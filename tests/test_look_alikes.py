@@ -91,24 +91,31 @@ def _with_copies(tmp_path, scales=(0.92, 1.08)):
 
 def test_a_family_is_grouped_once_and_each_size_verified_on_its_own(tmp_path, synth_small, library):
     """With two scaled copies of the bracket in the library, grouping runs for the six parts only (eight with
-    ``grouping.look_alike = 0``), every object the six-part library finds is found again as the same model
-    within 5 mm ADD-S, and no scaled bracket is reported (they are only in the library)."""
+    ``grouping.look_alike = 0``), and so do the coarse ICPs: the same models from the same poses as with the six
+    parts alone (the copies take the bracket's coarse poses). Every object the six-part library finds is found
+    again as the same model within 5 mm ADD-S, and no scaled bracket is reported (they are only in the
+    library)."""
     cfg = PipelineConfig(seed=4)
     big = ModelLibrary.from_folder(_with_copies(tmp_path), cfg)
     ds = BopDataset(synth_small)
     ref = next(r for r in ds.images if any(g["obj_id"] == 1 for g in ds.gt(r)))
     frame = ds.frame(ref)
-    calls, found = {}, {}
+    calls, coarse, found = {}, {}, {}
     for name, lib, c in (("parts", library, cfg), ("families", big, cfg),
                          ("each", big, cfg.replace(grouping={"look_alike": 0.0}))):
         det = Detector(lib, c, workers=1)
-        group = det.grouper.group
-        calls[name] = []
+        group, coarse_icp = det.grouper.group, det._coarse_icp
+        calls[name], coarse[name] = [], []
         det.grouper.group = lambda view, pm, *a, _n=calls[name], _g=group, **kw: _n.append(pm.model.obj_id) or _g(
             view, pm, *a, **kw)
+        det._coarse_icp = lambda scene, poses, _n=coarse[name], _f=coarse_icp, _lib=lib: _n.extend(
+            (_lib[mi].obj_id, T) for mi, T in poses) or _f(scene, poses)
         found[name] = det.detect(frame).detections
     plain, with_copies = found["parts"], found["families"]
     assert sorted(calls["families"]) == sorted(calls["parts"]) == [1, 2, 3, 4, 5, 6]
+    assert coarse["parts"] and [o for o, _ in coarse["families"]] == [o for o, _ in coarse["parts"]]
+    assert all(np.array_equal(a, b) for (_, a), (_, b) in zip(coarse["families"], coarse["parts"]))
+    assert {o for o, _ in coarse["each"]} > {1, 101, 201}  # each on its own: the copies' own coarse ICPs
     assert sorted(calls["each"]) == [1, 2, 3, 4, 5, 6, 101, 201]
     assert plain and all(d.obj_id < 100 for d in with_copies), [d.obj_id for d in with_copies]
     for d in plain:

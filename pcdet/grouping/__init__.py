@@ -66,8 +66,8 @@ class GroupingCommon:
     look_alike: float = param(0.003, "m; models of one shape at other sizes (each centred on its bounding box in "
                                      "its own frame, their samples this close on average at the smaller one's size, "
                                      "sizes under 1.25 times apart) are grouped once, for the family's middle-sized "
-                                     "member, and every member takes its raw poses (0: each model grouped on its "
-                                     "own)")
+                                     "member, whose best raw poses get the coarse ICP, and every member takes "
+                                     "those coarse poses (0: each model grouped on its own)")
 
     def __post_init__(self):
         if self.method not in GROUPERS:
