@@ -633,7 +633,7 @@ class Detector:
             used = sorted(set(source))
             looks = dict(zip(used, self._verify_poses(frame, scene, [(raw[i].model_index, raw[i].T_scene_model)
                                                                     for i in used], stride=2)))
-            pre = [looks[i] for i in source]
+        first_looks = looks  # the coarse stage below rebinds ``looks``
         # a short coarse ICP for the best raw hypotheses of each grouped model (a family of look-alikes: of its
         # representative, whose coarse pose and look every member then takes), then the full ICP for the best few
         # of each model
@@ -695,7 +695,7 @@ class Detector:
                     order, kept = self._select(frame, scene, hyps, regs, vers, targets=targets, trace=trace)
         stats["refined"] = len(hyps)
         if trace is not None:
-            trace.first_look, trace.refined = pre, keep
+            trace.first_look, trace.refined = [first_looks[i] for i in source], keep
             trace.registrations, trace.verifications, trace.accepted, trace.kept = regs, vers, order, kept
         dets = [self._detection(frame, hyps[j].model_index, regs[j], vers[j], hyps[j].n_inliers, hyps[j].group)
                 for j in kept]
