@@ -43,9 +43,10 @@ STOP = (3e-5, 3e-6)
 # follows the camera the single level loses.
 RECOVER_LEVELS = (8, 4)
 
-# relocalise(points, map_points): the camera's T_world_cam (4, 4) from its points (N, 3, camera frame, m) on the
-# map's points (M, 3, world frame, m) with no guess, or None where none is found (odometry_run.relocalise)
-Relocalise = Callable[[np.ndarray, np.ndarray], "np.ndarray | None"]
+# relocalise(points, normals, map_points, map_normals): the camera's T_world_cam (4, 4) from its points and unit
+# normals (N, 3 each, camera frame, m; the normals face the camera) on the map's (M, 3 each, world frame, m; the
+# normals face the keyframes' cameras) with no guess, or None where none is found (odometry_run.relocalise)
+Relocalise = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], "np.ndarray | None"]
 
 
 @dataclass(frozen=True)
@@ -199,7 +200,10 @@ class _KeyframeICP:
         if fit[0] > best_fit[0]:
             best, best_fit = T, fit
         if not self._holds(best_fit) and self.relocalise is not None:
-            start = self.relocalise(pts, mp)
+            # normals as the map's keyframes have them (``_add_key``): facing the camera, so that the frame's and the
+            # map's agree in sign (FPFH tells a surface's two sides apart)
+            p, _, _ = voxel_downsample(pts, vox, representatives=False)
+            start = self.relocalise(p, estimate_normals(p, 3 * vox, 30), mp, mn)
             if start is not None:
                 T = icp(src, mp, mn, start, rc, target_tree=tree, weights=w, tolerance=STOP).T_target_source
                 fit = self._fit(src, w, T, v)

@@ -256,14 +256,15 @@ def test_odometry_refuses_a_pixel_stride_under_one():
         OdometryConfig(pixel_stride=0)
 
 
-def _sevenscenes_every(n: int, cfg: OdometryConfig, relocalise=None) -> tuple[float, int]:
-    """ATE (m) of odometry over every ``n``-th real 7-Scenes frame, and the frames it recovered."""
+def _sevenscenes_every(n: int, cfg: OdometryConfig, relocalise=None, backwards: bool = False) -> tuple[float, int]:
+    """ATE (m) of odometry over every ``n``-th real 7-Scenes frame (from the last one down when ``backwards``), and
+    the frames it recovered."""
     from pcdet.odometry import Odometry
 
     from .conftest import shared
 
     rec = open_recording(shared("sevenscenes"))
-    refs = list(rec)[::n]
+    refs = (list(rec)[::-1] if backwards else list(rec))[::n]
     truth = rec.camera_poses()
     gt = [np.linalg.inv(truth[refs[0]]) @ truth[r] for r in refs]
     odo = Odometry(cfg, relocalise)
@@ -313,6 +314,19 @@ def test_odometry_relocalises_a_camera_beyond_icp_reach_globally(tmp_path):
     refs = list(rec)
     gt = [np.linalg.inv(truth[refs[0]]) @ truth[r] for r in refs]
     assert ate_rmse(poses, gt) < 0.025
+
+
+@pytest.mark.parametrize("n", [20, 25])
+def test_a_relocalised_camera_is_not_turned_around(n):
+    """The real 7-Scenes clip backwards at every 20th and 25th frame (steps of up to 19 cm and 14 degrees): around
+    frames 119 and 124 the coarse-to-fine ICP loses the camera and the global registration against the map
+    (``odometry_run.relocalise``) must find it. With the normals left to ``register`` (turned away from each cloud's
+    centroid) FPFH matched the room turned by 180 degrees there (ATE 0.84 and 0.94 m measured); with the frame's
+    and the map's normals facing their cameras the camera is kept (ATE under 40 mm; 28.9 and 27.8 mm measured)."""
+    from pcdet.odometry_run import relocalise
+
+    ate, recovered = _sevenscenes_every(n, OdometryConfig(), relocalise, backwards=True)
+    assert recovered >= 1 and ate < 0.04
 
 
 def test_a_camera_turning_towards_unseen_ground_is_not_taken_for_lost(monkeypatch):

@@ -144,10 +144,14 @@ def load_geometry(path, units="auto") -> Geometry:
 
 def as_geometry(source, units="auto", name: str = "input") -> Geometry:
     """A model or scan given in any form pcdet takes, as a ``Geometry`` in metres: a file path (``load_geometry``),
-    an (N, 3) array of points, an open3d ``PointCloud`` or ``TriangleMesh``, or a trimesh ``Trimesh`` or
-    ``PointCloud``. ``name`` stands for the input in messages when it is not a file."""
+    an (N, 3) array of points, an open3d ``PointCloud`` or ``TriangleMesh``, a trimesh ``Trimesh`` or
+    ``PointCloud``, or a ``Geometry`` (already in metres: returned as it is, ``units`` aside; the way to give a
+    cloud's normals, oriented as the caller knows them, without open3d). ``name`` stands for the input in messages
+    when it is not a file."""
     if isinstance(source, (str, Path)):
         return load_geometry(source, units)
+    if isinstance(source, Geometry):
+        return source
     verts, faces, normals = _in_memory(source, name)
     if faces is None:
         fin = np.isfinite(verts).all(axis=1)
