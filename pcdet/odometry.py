@@ -6,10 +6,11 @@ is taken at one instant) and one thread (its threaded reductions would make the 
 count). Its voxel is 4 cm, its own rule of max range / 100; at 2 cm its scan-to-map search ran at 1 frame/s on
 640 x 480 depth frames, and as it ships (1 m) it does not follow a room-scale depth camera.
 
-Measured with ``python scripts/bench_odometry.py`` on 7-Scenes (300 real Kinect frames, KinectFusion poses;
-2026-12-06, one run): ATE 20.9 mm at 56.1 frames/s for the default, 27.3 mm for plain frame-to-frame ICP, 41.7
-mm at 4.8 frames/s for KISS-ICP at 4 cm; Open3D's RGB-D odometry (colour + depth) 24.9 mm at 3.3 frames/s. This
-host's speed swings by up to two times between hours (15 frames/s for the default in a slow one). Weighting each
+Measured with ``python scripts/bench_odometry.py --frames 300 --data ../shared/data/sevenscenes`` on 7-Scenes (300
+real Kinect frames, KinectFusion poses; 2026-12-07, one run): ATE 19.5 mm at 46.8 frames/s for the default, 27.3 mm
+for plain frame-to-frame ICP, 41.7 mm at 4.1 frames/s for KISS-ICP at 4 cm; Open3D's RGB-D odometry (colour +
+depth) 24.9 mm at 2.4 frames/s. This host's speed swings by up to two times between hours (15 frames/s for the
+default in a slow one). Weighting each
 point by its depth noise took the default from 29.4 mm and frame-to-frame ICP from 49.7 mm; a Tukey kernel one map grid
 spacing wide instead of two took them from 22.1 and 27.9 mm. On table-top views KISS-ICP
 alone drifts, because the table is most of every view and point-to-point ICP slides along it; point-to-plane
@@ -29,7 +30,6 @@ from .cloud import estimate_normals, voxel_downsample, voxel_keys
 from .errors import ConfigError
 from .frame import Frame
 from .grid import GridTree
-from .metrics import rotation_error_deg
 from .params import check_positive
 from .refine import RefineConfig, icp
 
@@ -58,9 +58,10 @@ class OdometryConfig:
     adaptive threshold start (m) and the motion it ignores (m); icp_voxel: ICP sampling, in metres per metre of
     the frame's median depth (a depth camera's noise and pixel footprint grow with range); pixel_stride: every
     n-th pixel row and column is used (4 keeps a point every 7 mm at 1 m, under the 1.5 cm ICP grid, and
-    sixteenths the work); keyframe_distance (m) / keyframe_angle_deg: how far a frame moves or turns from the
-    last keyframe before it becomes one; keyframes: how many keyframes make the map ICP registers against (1,
-    with 0 and 0: plain frame-to-frame ICP); depth_weight_power: each point weighs (median depth / its
+    sixteenths the work); keyframe_distance (m) / keyframe_angle_deg: how far a frame must be, in position or in
+    direction, from every keyframe of the map to become one (a camera back where it has been makes none);
+    keyframes: at most this many keyframes make the map ICP registers against, the oldest leaving first (1, with
+    0 and 0: plain frame-to-frame ICP); depth_weight_power: each point weighs (median depth / its
     depth)^power, the inverse of a structured-light camera's depth noise variance at 4 (0: all alike);
     icp_kernel: width of ICP's Tukey kernel on the point-to-plane residual, in map grid spacings (the grid is
     ``icp_voxel`` times the median depth; ICP pairs points up to 4 spacings apart); recover_below: a frame is
@@ -73,9 +74,12 @@ class OdometryConfig:
     of all the samples would not tell: played backwards, where the camera turns towards unseen ground, it falls
     to 0.71 between keyframes while ICP holds.)
 
-    Measured with ``python scripts/bench_odometry.py`` (7-Scenes, 300 real Kinect frames): the map of 10
-    keyframes brings frame-to-frame ICP's ATE from 27.3 to 20.9 mm (49.7 to 29.4 mm without the depth weights and
-    with a kernel of two spacings)."""
+    Measured with ``python scripts/bench_odometry.py`` (7-Scenes, 300 real Kinect frames): the map of keyframes
+    brings frame-to-frame ICP's ATE from 27.3 to 19.5 mm (the map of the last 10 keyframes, each 10 cm or 10
+    degrees from the last one, to 20.9-21.6 mm; and 49.7 to 29.4 mm without the depth weights and with a kernel
+    of two spacings). The clip makes 19 keyframes, so 50 hold all of it; where the camera comes back, as on a
+    synthetic table-top recording going round twice, 50 hold the first round (docs/measurements.md, "A map of the
+    places seen")."""
 
     method: str = "icp"
     voxel: float = 0.04
@@ -87,7 +91,7 @@ class OdometryConfig:
     pixel_stride: int = 4
     keyframe_distance: float = 0.1
     keyframe_angle_deg: float = 10.0
-    keyframes: int = 10
+    keyframes: int = 50
     depth_weight_power: float = 4.0
     icp_kernel: float = 1.0
     recover_below: float = 0.9
@@ -120,11 +124,13 @@ def _kiss(cfg: OdometryConfig):
 
 
 class _KeyframeICP:
-    """Point-to-plane ICP of each frame against a local map of the last ``keyframes`` keyframes:
+    """Point-to-plane ICP of each frame against a map of up to ``keyframes`` keyframes:
     ``step(points, T_world_guess)`` returns ``T_world_cam``. A keyframe enters the map at ``icp_voxel`` (per metre
     of its median depth) with its normals; the current frame takes part at twice that spacing. A frame becomes
-    a keyframe once it has moved ``keyframe_distance`` m or turned ``keyframe_angle_deg`` from the last one
-    (0 and 0 with one keyframe: plain frame-to-frame ICP). Registering against a map that several frames made,
+    a keyframe where it is ``keyframe_distance`` m or ``keyframe_angle_deg`` away from every keyframe of the map
+    (0 and 0 with one keyframe: plain frame-to-frame ICP), so the map holds one view per place and direction the
+    camera has been, and a camera that comes back registers against its first views of the place instead of
+    against views made since, with the drift since in them. Registering against a map that several frames made,
     instead of against the frame before, stops per-frame errors from adding up while the view overlaps."""
 
     def __init__(self, cfg: OdometryConfig, relocalise: Relocalise | None = None):
@@ -132,8 +138,8 @@ class _KeyframeICP:
         self.relocalise = relocalise
         # (points, normals, weights): the world frame, and each point's depth^-depth_weight_power in its keyframe
         self.keys: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self.key_poses: list[np.ndarray] = []  # T_world_cam (4, 4) of each keyframe, as ``keys``
         self.map = None  # (points, normals, tree, voxel)
-        self.T_world_key = None
         self.recovered = 0  # frames whose pose a second registration changed
 
     def step(self, pts: np.ndarray, T_world_guess: np.ndarray) -> np.ndarray:
@@ -151,11 +157,21 @@ class _KeyframeICP:
                           tolerance=STOP).T_target_source
         if cfg.recover_below > 0 and len(src):
             T_world_cur = self._recover(pts, src, w, (T_world_guess, T_world_cur), vox=vox, v=v, rc=rc)
-        T_key_cur = np.linalg.inv(self.T_world_key) @ T_world_cur
-        if (np.linalg.norm(T_key_cur[:3, 3]) >= cfg.keyframe_distance
-                or rotation_error_deg(T_key_cur, np.eye(3)) >= cfg.keyframe_angle_deg):
+        if self._new_view(T_world_cur):
             self._add_key(pts, vox, T_world_cur)
         return T_world_cur
+
+    def _new_view(self, T_world_cam: np.ndarray) -> bool:
+        """Whether a camera at ``T_world_cam`` (4, 4) is ``keyframe_distance`` or ``keyframe_angle_deg`` away from
+        every keyframe of the map: where it is not, the map already holds a view from about there (a camera back
+        where it has been makes no keyframe, and the map keeps the first views of the place)."""
+        cfg = self.cfg
+        K = np.asarray(self.key_poses)
+        moved = np.linalg.norm(K[:, :3, 3] - T_world_cam[:3, 3], axis=1)
+        # the angle of each R_key^T R_cam from its trace, as metrics.rotation_error_deg
+        cos = (np.einsum("kij,ij->k", K[:, :3, :3], T_world_cam[:3, :3]) - 1) / 2
+        turned = np.degrees(np.arccos(np.clip(cos, -1, 1)))
+        return not ((moved < cfg.keyframe_distance) & (turned < cfg.keyframe_angle_deg)).any()
 
     def _fit(self, src: np.ndarray, w: np.ndarray | None, T: np.ndarray, v: float) -> tuple[float, float]:
         """How ``T`` (4, 4) puts the samples ``src`` (N, 3, camera frame), weighted by ``w`` (N,) or alike, on the
@@ -216,7 +232,7 @@ class _KeyframeICP:
         """The world poses so far were off by ``C`` (4, 4, left-multiplied): move the map with them."""
         if self.map is not None:
             self.keys = [(transform(C, p), n @ C[:3, :3].T, w) for p, n, w in self.keys]
-            self.T_world_key = C @ self.T_world_key
+            self.key_poses = [C @ T for T in self.key_poses]
             self._build()
 
     def _add_key(self, pts: np.ndarray, vox: float, T_world_cam: np.ndarray) -> None:
@@ -225,7 +241,7 @@ class _KeyframeICP:
         # not over this frame's median depth as ICP's weights (_depth_weights): a map cell mixes keyframes
         w = np.maximum(p[:, 2], 1e-3) ** -self.cfg.depth_weight_power
         self.keys = (self.keys + [(transform(T_world_cam, p), n @ T_world_cam[:3, :3].T, w)])[-self.cfg.keyframes:]
-        self.T_world_key = T_world_cam
+        self.key_poses = (self.key_poses + [T_world_cam])[-self.cfg.keyframes:]
         self._vox = vox
         self._build()
 
