@@ -288,7 +288,7 @@ def odometry(recording: Path = typer.Argument(..., help="Recording folder: BOP, 
                                               "sequence, or a scene of seq-NN sequences), depth/ + camera.json."),
              out: Path = typer.Option(..., help="Output folder: trajectory.txt (TUM format) and odometry.toml."),
              format: str = typer.Option("auto", help="Reader: auto, bop, tum, redwood, 7scenes, folder."),
-             method: Optional[str] = typer.Option(None, help="icp (point-to-plane ICP against a local map of "
+             method: Optional[str] = typer.Option(None, help="icp (point-to-plane ICP against a map of "
                                                   "keyframes; the default), kiss (KISS-ICP) or kiss+icp (KISS-ICP's "
                                                   "pose corrected by that ICP)."),
              config: Optional[Path] = typer.Option(None, help="TOML file with an [odometry] table of settings "

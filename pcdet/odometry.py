@@ -1,4 +1,4 @@
-"""Camera odometry for RGB-D recordings: point-to-plane ICP against a local map of keyframes (the default),
+"""Camera odometry for RGB-D recordings: point-to-plane ICP against a map of keyframes (the default),
 KISS-ICP (Vizzo et al. 2023) configured for depth-camera range, or KISS-ICP corrected by that ICP.
 
 KISS-ICP is made for LiDAR: here it gets metres-scale settings (``OdometryConfig``), no deskewing (a depth image
@@ -51,7 +51,7 @@ Relocalise = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], "np.ndar
 
 @dataclass(frozen=True)
 class OdometryConfig:
-    """method: "icp" (point-to-plane ICP against a local map of keyframes, constant-velocity guess), "kiss"
+    """method: "icp" (point-to-plane ICP against a map of keyframes, constant-velocity guess), "kiss"
     (KISS-ICP) or "kiss+icp" (KISS-ICP's pose corrected by that ICP); voxel: KISS-ICP's map voxel (m; 4 cm is
     KISS-ICP's own rule, max_range / 100: at 2 cm its scan-to-map search makes it run at 1 frame/s on
     640 x 480 depth); min_range / max_range: points used (m); initial_threshold and min_motion: KISS-ICP's
@@ -106,6 +106,11 @@ class OdometryConfig:
             raise ConfigError(f"OdometryConfig.method must be 'kiss', 'icp' or 'kiss+icp', got {self.method!r}")
         if self.pixel_stride < 1:
             raise ConfigError(f"OdometryConfig.pixel_stride must be >= 1, got {self.pixel_stride}")
+        if self.keyframes < 1:  # 0 would keep every keyframe (a list's [-0:] is all of it)
+            raise ConfigError(f"OdometryConfig.keyframes must be >= 1, got {self.keyframes}")
+        if self.keyframe_distance < 0 or self.keyframe_angle_deg < 0:
+            raise ConfigError("OdometryConfig.keyframe_distance and keyframe_angle_deg must be >= 0, got "
+                              f"{self.keyframe_distance} and {self.keyframe_angle_deg}")
 
 
 def _kiss(cfg: OdometryConfig):

@@ -256,6 +256,16 @@ def test_odometry_refuses_a_pixel_stride_under_one():
         OdometryConfig(pixel_stride=0)
 
 
+@pytest.mark.parametrize("bad", [{"keyframes": 0}, {"keyframe_distance": -0.1}, {"keyframe_angle_deg": -1.0}])
+def test_odometry_refuses_no_keyframes_and_negative_keyframe_spacings(bad):
+    """A map of no keyframes (which a list's [-0:] would have made a map of all of them) and negative spacings are
+    refused by name."""
+    from pcdet.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=next(iter(bad)).split("_")[0]):
+        OdometryConfig(**bad)
+
+
 def _sevenscenes_every(n: int, cfg: OdometryConfig, relocalise=None, backwards: bool = False) -> tuple[float, int]:
     """ATE (m) of odometry over every ``n``-th real 7-Scenes frame (from the last one down when ``backwards``), and
     the frames it recovered."""
