@@ -280,12 +280,12 @@ class Tracker:
     def _relocalised(self, seen: list[tuple[Detection, np.ndarray]], T_wc: np.ndarray) -> np.ndarray:
         """The camera pose (4, 4) as the mapped objects put it: of the odometry's ``T_wc`` and each pose that lays
         one detection of ``seen`` exactly onto a track of its object (the objects do not move), the one under
-        which most detections fall near tracks of their objects (``_near_tracks``); the odometry's unless another
+        which most detections fall on tracks of their objects (``_near_tracks``); the odometry's unless another
         does better (where odometry followed the camera, every detection of a mapped object already does), the
         first found among equals. Where the camera moved further than odometry followed, the detections would
         otherwise start new tracks beside the old ones, and the map and the camera would stay wrong."""
         best, most = T_wc, self._near_tracks(seen, T_wc)
-        if most == len(seen):  # every detection joins a track already: no camera can do better
+        if most == len(seen):  # every detection falls on a track already: no camera can do better
             return best
         for d, T_cm in seen:
             for tr in self.tracks:
