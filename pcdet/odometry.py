@@ -141,9 +141,9 @@ class _KeyframeICP:
     def __init__(self, cfg: OdometryConfig, relocalise: Relocalise | None = None):
         self.cfg = cfg
         self.relocalise = relocalise
-        # (points, normals, weights): the world frame, and each point's depth^-depth_weight_power in its keyframe
-        self.keys: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        self.key_poses: list[np.ndarray] = []  # T_world_cam (4, 4) of each keyframe, as ``keys``
+        # (points, normals, weights, T_world_cam): the world frame, each point's depth^-depth_weight_power in its
+        # keyframe, and the keyframe's camera
+        self.keys: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         self.map = None  # (points, normals, tree, voxel)
         self.recovered = 0  # frames whose pose a second registration changed
 
@@ -171,7 +171,7 @@ class _KeyframeICP:
         every keyframe of the map: where it is not, the map already holds a view from about there (a camera back
         where it has been makes no keyframe, and the map keeps the first views of the place)."""
         cfg = self.cfg
-        K = np.asarray(self.key_poses)
+        K = np.asarray([k[3] for k in self.keys])
         moved = np.linalg.norm(K[:, :3, 3] - T_world_cam[:3, 3], axis=1)
         # the angle of each R_key^T R_cam from its trace, as metrics.rotation_error_deg
         cos = (np.einsum("kij,ij->k", K[:, :3, :3], T_world_cam[:3, :3]) - 1) / 2
@@ -221,10 +221,9 @@ class _KeyframeICP:
         if fit[0] > best_fit[0]:
             best, best_fit = T, fit
         if not self._holds(best_fit) and self.relocalise is not None:
-            # normals as the map's keyframes have them (``_add_key``): facing the camera, so that the frame's and the
-            # map's agree in sign (FPFH tells a surface's two sides apart)
-            p, _, _ = voxel_downsample(pts, vox, representatives=False)
-            start = self.relocalise(p, estimate_normals(p, 3 * vox, 30), mp, mn)
+            # sampled as a keyframe, normals facing the camera as the map's do, so that the two agree in sign (FPFH
+            # tells a surface's two sides apart)
+            start = self.relocalise(*_key_samples(pts, vox), mp, mn)
             if start is not None:
                 T = icp(src, mp, mn, start, rc, target_tree=tree, weights=w, tolerance=STOP).T_target_source
                 fit = self._fit(src, w, T, v)
@@ -236,24 +235,22 @@ class _KeyframeICP:
     def correct(self, C: np.ndarray) -> None:
         """The world poses so far were off by ``C`` (4, 4, left-multiplied): move the map with them."""
         if self.map is not None:
-            self.keys = [(transform(C, p), n @ C[:3, :3].T, w) for p, n, w in self.keys]
-            self.key_poses = [C @ T for T in self.key_poses]
+            self.keys = [(transform(C, p), n @ C[:3, :3].T, w, C @ T) for p, n, w, T in self.keys]
             self._build()
 
     def _add_key(self, pts: np.ndarray, vox: float, T_world_cam: np.ndarray) -> None:
-        p, _, _ = voxel_downsample(pts, vox, representatives=False)
-        n = estimate_normals(p, 3 * vox, 30)
+        p, n = _key_samples(pts, vox)
         # not over this frame's median depth as ICP's weights (_depth_weights): a map cell mixes keyframes
         w = np.maximum(p[:, 2], 1e-3) ** -self.cfg.depth_weight_power
-        self.keys = (self.keys + [(transform(T_world_cam, p), n @ T_world_cam[:3, :3].T, w)])[-self.cfg.keyframes:]
-        self.key_poses = (self.key_poses + [T_world_cam])[-self.cfg.keyframes:]
+        key = (transform(T_world_cam, p), n @ T_world_cam[:3, :3].T, w, T_world_cam)
+        self.keys = (self.keys + [key])[-self.cfg.keyframes:]
         self._vox = vox
         self._build()
 
     def _build(self) -> None:
         """The map: one point and normal per grid cell, the mean of the keyframes' samples in it weighted by their
         depth noise (as a TSDF fuses its views), normals turned to agree with the newest keyframe's."""
-        P, N, W = (np.concatenate(a[::-1]) for a in zip(*self.keys))  # the newest keyframe first
+        P, N, W = (np.concatenate(a[::-1]) for a in list(zip(*self.keys))[:3])  # the newest keyframe first
         if len(self.keys) > 1:
             _, first, cell = np.unique(voxel_keys(P, self._vox), return_index=True, return_inverse=True)
             order = np.argsort(first)  # cells in the order of their first sample, as the map was before
@@ -323,6 +320,13 @@ class Odometry:
         self.gap = 0
         self.T = T_new
         return T_new.copy()
+
+
+def _key_samples(points: np.ndarray, vox: float) -> tuple[np.ndarray, np.ndarray]:
+    """A frame's points (N, 3, camera frame, m) sampled as a keyframe: one per ``vox`` grid cell (M, 3), and their
+    unit normals (M, 3) over 3 ``vox``, facing the camera."""
+    p, _, _ = voxel_downsample(points, vox, representatives=False)
+    return p, estimate_normals(p, 3 * vox, 30)
 
 
 def _depth_weights(points: np.ndarray, power: float) -> np.ndarray | None:

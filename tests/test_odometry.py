@@ -342,10 +342,10 @@ def test_a_camera_back_where_it_has_been_registers_against_its_first_views():
     truth = rec.camera_poses()
     odo = Odometry(OdometryConfig(), relocalise)
     poses = [odo.step(rec.frame(r)) for r in out]
-    made = len(odo.f2f.key_poses)
+    made = len(odo.f2f.keys)
     poses += [odo.step(rec.frame(r)) for r in out[-2::-1]]
     refs = out + out[-2::-1]
-    assert len(odo.f2f.key_poses) == made
+    assert len(odo.f2f.keys) == made
     assert ate_rmse(poses, [np.linalg.inv(truth[refs[0]]) @ truth[r] for r in refs]) < 0.022
 
 
