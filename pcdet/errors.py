@@ -1,6 +1,10 @@
 """Error types that carry the offending file, so the CLI can print one clear line."""
 from __future__ import annotations
 
+from pathlib import Path
+
+_PACKAGE = Path(__file__).resolve().parent
+
 
 class InputError(ValueError):
     """Bad input data: names the file (when there is one) and the problem.
@@ -22,17 +26,28 @@ class DependencyError(RuntimeError):
     """An optional dependency that a chosen feature needs is not installed (the message says how to get it)."""
 
 
+def _package_place(filename: str) -> str | None:
+    """``pcdet/<module path>`` where ``filename`` lies inside this package (found by the package's own location,
+    so a checkout in a folder that happens to be called ``pcdet`` is not mistaken for it), else ``None``."""
+    try:
+        return "pcdet/" + Path(filename).resolve().relative_to(_PACKAGE).as_posix()
+    except (ValueError, OSError):
+        return None
+
+
 def internal_error(e: BaseException) -> str:
     """One line for an unexpected exception met while processing one frame of a batch (a bug, not bad input):
     its type, where in pcdet it was raised and its message, so the frame can be reported and the batch go on.
-    ``internal error (please report it): IndexError at pcdet/refine.py:169 in _pairs_many: ...``"""
+    ``internal error (please report it): IndexError at pcdet/refine.py:169 in _pairs_many: ...``; where no frame
+    of the traceback lies in pcdet, the last frame is named by its own path."""
     import traceback
 
-    frames = [(f.filename.replace("\\", "/"), f.lineno, f.name) for f in traceback.extract_tb(e.__traceback__)]
-    ours = [f for f in frames if "/pcdet/" in f[0]] or frames
+    frames = traceback.extract_tb(e.__traceback__)
+    ours = [(place, f) for f in frames if (place := _package_place(f.filename)) is not None]
     where = ""
     if ours:
-        path, line, name = ours[-1]
-        shown = f"pcdet/{path.rsplit('/pcdet/', 1)[-1]}" if "/pcdet/" in path else path
-        where = f" at {shown}:{line} in {name}"
+        place, f = ours[-1]
+        where = f" at {place}:{f.lineno} in {f.name}"
+    elif frames:
+        where = f" at {frames[-1].filename}:{frames[-1].lineno} in {frames[-1].name}"
     return f"internal error (please report it): {type(e).__name__}{where}: {e}"

@@ -133,5 +133,5 @@ def test_a_frame_that_meets_a_bug_is_reported_and_the_run_goes_on(recording, lib
     assert s.images == 5 and len(list((out / "frames").glob("*.json"))) == 5
     failures = json.loads((out / "failures.json").read_text())
     assert len(failures) == 1, failures
-    assert failures[0]["error"].startswith("internal error (please report it): IndexError at pcdet/")
+    assert failures[0]["error"].startswith("internal error (please report it): IndexError at pcdet/runner.py:")
     assert "tests/test_runner.py" not in failures[0]["error"] and failures[0]["error"].endswith(": made to fail")
