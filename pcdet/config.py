@@ -125,19 +125,27 @@ def _typed(value, typ, name: str, source):
     return value
 
 
+def _is_path(name_or_path: str | Path) -> bool:
+    """A ``Path``, or a string with a suffix or a folder in it (``./hough.toml``, ``cfg/mine``), names a file; a
+    bare word (``hough``) names a shipped preset, whatever the current folder holds."""
+    if isinstance(name_or_path, Path):
+        return True
+    return bool(Path(name_or_path).suffix) or "/" in name_or_path or "\\" in name_or_path
+
+
 def _preset_path(name_or_path: str | Path) -> Path:
-    """A pipeline file: an existing file as given, else the preset ``pipelines/<name>.toml`` (a folder that happens
-    to have a preset's name, such as a dataset called ``crowded``, does not hide the preset)."""
-    p = Path(name_or_path)
-    if p.is_file():
+    """A pipeline file: a path as given (see ``_is_path``), else the shipped preset ``pipelines/<name>.toml``."""
+    if _is_path(name_or_path):
+        p = Path(name_or_path)
+        if not p.is_file():
+            raise FileNotFoundError(f"{p}: pipeline file not found")
         return p
-    if not p.suffix:
-        preset = PIPELINES_DIR / f"{name_or_path}.toml"
-        if preset.is_file():
-            return preset
-        names = sorted(q.stem for q in PIPELINES_DIR.glob("*.toml"))
-        raise FileNotFoundError(f"{name_or_path}: no such pipeline preset; available: {names}")
-    raise FileNotFoundError(f"{p}: pipeline file not found")
+    preset = PIPELINES_DIR / f"{name_or_path}.toml"
+    if preset.is_file():
+        return preset
+    names = sorted(q.stem for q in PIPELINES_DIR.glob("*.toml"))
+    raise FileNotFoundError(f"{name_or_path}: no such pipeline preset; available: {names} (a pipeline file is "
+                            "named by a path with its suffix, e.g. ./mine.toml)")
 
 
 def _merge(a: dict, b: dict) -> dict:
@@ -157,13 +165,14 @@ def _read_toml(p: Path) -> dict:
 
 
 def load_pipeline(name_or_path: str | Path | None = None) -> PipelineConfig:
-    """A preset by name (``pipelines/<name>.toml``) or a TOML file path; ``None`` gives the defaults. Presets
-    joined by ``+`` are layered left to right, field by field: ``"crowded+hough"`` is the crowded preset with
-    the Hough preset's grouping."""
+    """A shipped preset by name (``"hough"``: ``pipelines/hough.toml`` inside the package, never a file of the
+    current folder) or a TOML file by path (``"./hough.toml"``, anything with a suffix or a slash); ``None`` gives
+    the defaults. Parts joined by ``+`` are layered left to right, field by field: ``"crowded+hough"`` is the
+    crowded preset with the Hough preset's grouping."""
     if name_or_path is None:
         return PipelineConfig()
-    parts = [name_or_path] if isinstance(name_or_path, Path) or Path(name_or_path).is_file() \
-        else str(name_or_path).split("+")
+    whole_file = _is_path(name_or_path) and Path(name_or_path).is_file()  # a file whose name holds a '+'
+    parts = [name_or_path] if whole_file else str(name_or_path).split("+")
     data: dict = {}
     for part in parts:
         p = _preset_path(part)

@@ -114,3 +114,18 @@ def test_a_folder_named_like_a_preset_does_not_hide_it(tmp_path, monkeypatch):
     (tmp_path / "crowded").mkdir()  # e.g. a dataset made by `pcdet synth --out crowded`
     assert load_pipeline("crowded+hough") == load_pipeline(PIPELINES_DIR / "crowded.toml").replace(
         grouping=dataclasses.asdict(load_pipeline("hough").grouping))
+
+
+def test_a_preset_is_looked_up_in_the_package_and_a_path_is_a_path(tmp_path, monkeypatch):
+    """Files called ``hough`` and ``hough.toml`` in the current folder change nothing of what ``hough`` means; the
+    file is read when named as a path (``./hough.toml``)."""
+    monkeypatch.chdir(tmp_path)
+    shipped = load_pipeline(PIPELINES_DIR / "hough.toml")
+    (tmp_path / "hough").write_text("seed = 77\n")
+    (tmp_path / "hough.toml").write_text("seed = 78\n")
+    assert load_pipeline("hough") == shipped
+    assert load_pipeline("crowded+hough").seed == shipped.seed
+    assert load_pipeline("./hough.toml").seed == 78 and load_pipeline("./hough").seed == 77
+    assert load_pipeline("crowded+./hough.toml").seed == 78
+    with pytest.raises(FileNotFoundError, match="pipeline file not found"):
+        load_pipeline("./nosuch.toml")
