@@ -456,7 +456,7 @@ def eval_cmd(dataset: Path = typer.Argument(..., help="BOP dataset with ground t
     from .datasets.bop import VISIB_GT_MIN, BopDataset
     from .evaluate import evaluate, load_symmetries
     from .io.atomic import atomic_write_text
-    from .io.bop import read_results_csv
+    from .io.bop import ROTATION_EXACT, read_results_csv
 
     if json_out:
         check_file(json_out, "evaluation JSON")
@@ -467,6 +467,12 @@ def eval_cmd(dataset: Path = typer.Argument(..., help="BOP dataset with ground t
     if models is None:
         fail(f"{dataset}: no models/ folder; pass --models")
     rows = read_results_csv(results)
+    fixed = [r for r in rows if r["R_deviation"] > ROTATION_EXACT]
+    if fixed:
+        worst = max(fixed, key=lambda r: r["R_deviation"])
+        console.print(f"note: {escape(str(results))}: R re-orthonormalised in {len(fixed)} row(s) (largest "
+                      f"deviation of R R^T from I {worst['R_deviation']:.3g}, line {worst['line']})",
+                      highlight=False, soft_wrap=True)
     lib = _library(models, PipelineConfig(), units)
     ev = evaluate(ds, rows, lib, symmetries=load_symmetries(models, lib), source=results)
     for w in ev.warnings:
@@ -487,7 +493,7 @@ def _print_eval(ev, lib):
             ("ar_vsd", "{:.3f}", "AR_VSD"), ("ar_mssd", "{:.3f}", "AR_MSSD"), ("ar_mspd", "{:.3f}", "AR_MSPD"),
             ("ar", "{:.3f}", "AR")]
     t = Table(title="recall at ADD / ADD-S < 0.1 d (each matched by its own error), precision (ADD-S), BOP average "
-                    "recall (VSD, MSSD, MSPD; symmetries from models_info.json)")
+                    "recall (VSD, MSSD, MSPD); ADD, MSSD and MSPD up to the symmetries of models_info.json")
     t.add_column("object")
     for _, _, h in cols:
         t.add_column(h, justify="right")

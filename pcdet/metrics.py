@@ -20,9 +20,13 @@ VSD_THETAS = np.arange(0.05, 0.51, 0.05)  # error below which a pose counts as c
 VSD_DELTA = 0.015  # m, tolerance of the visibility test (BOP: 15 mm)
 
 
-def add(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray) -> float:
-    """ADD (Hinterstoisser 2012): mean over model points x of ||T_est x - T_gt x|| (m)."""
-    return float(np.linalg.norm(transform(T_est, points) - transform(T_gt, points), axis=1).mean())
+def add(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray, symmetries: list[np.ndarray] | None = None) -> float:
+    """ADD (Hinterstoisser 2012): mean over model points x of ||T_est x - T_gt x|| (m). With ``symmetries``
+    ((4, 4) model-frame transforms, as for MSSD) the least over them of ||T_est x - T_gt S x||, so that a pose
+    turned by one of the object's declared symmetries is as right as the annotated one."""
+    pe = transform(T_est, points)
+    syms = [np.eye(4)] + list(symmetries or [])
+    return float(min(np.linalg.norm(pe - transform(T_gt @ S, points), axis=1).mean() for S in syms))
 
 
 def adds(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray) -> float:
@@ -143,13 +147,13 @@ def object_errors(gts: list[dict], ests: list[dict], points: np.ndarray, K: np.n
     """ADD, ADD-S, MSSD and MSPD of every estimate against every ground-truth instance of one object.
 
     gts : [{"T_cam_model", "visib_fract"}]; ests : [{"score", "T_cam_model"}]; points : (N, 3) model points (m);
-    symmetries : the object's model-frame symmetries (``symmetry_transforms``), for MSSD and MSPD."""
+    symmetries : the object's model-frame symmetries (``symmetry_transforms``), for ADD, MSSD and MSPD."""
     E, G = len(ests), len(gts)
     errs = {k: np.full((E, G), np.inf) for k in ("add", "adds", "mssd", "mspd")}
     for i, e in enumerate(ests):
         for j, g in enumerate(gts):
             Te, Tg = e["T_cam_model"], g["T_cam_model"]
-            errs["add"][i, j] = add(Te, Tg, points)
+            errs["add"][i, j] = add(Te, Tg, points, symmetries)
             errs["adds"][i, j] = adds(Te, Tg, points)
             errs["mssd"][i, j] = mssd(Te, Tg, points, symmetries)
             errs["mspd"][i, j] = mspd(Te, Tg, points, K, symmetries)
@@ -177,7 +181,8 @@ def summarize(objects: list[ObjectErrors], image_width: int = 640, add_threshold
 
     Every metric matches estimates to instances on its own (``match``, per threshold), as the BOP toolkit does,
     so each column means what its name says:
-    recall_add / recall_adds : instances matched at ADD / ADD-S < ``add_threshold`` x diameter, over all
+    recall_add / recall_adds : instances matched at ADD (up to the declared symmetries) / ADD-S <
+      ``add_threshold`` x diameter, over all
       instances; precision_adds : estimates matched at that ADD-S threshold, over all estimates.
     ar_mssd : mean over thresholds 0.05..0.5 x diameter of the MSSD recall; ar_mspd : mean over 5..50 px
       (x image_width / 640); ar_vsd : mean over tau 0.05..0.5 x diameter and theta 0.05..0.5, when VSD errors

@@ -1,4 +1,6 @@
 """Scoring a results list against a BOP dataset: perfect estimates, a known miss, a false positive."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -149,3 +151,69 @@ def test_bop19_scoring_with_a_target_list(synth_small, library, tmp_path):
                                "T_cam_model": T}], library, with_vsd=False)
     assert ev.overall["instances"] == 1 and ev.overall["recall_add"] == 0.0
     assert "images the target list does not name" in ev.warnings[0]
+
+
+def test_bop_annotations_as_estimates_score_one_on_every_metric(tmp_path, library):
+    """The ground truth written as a results file the way real BOP annotations are (R orthonormal only to about
+    2e-3, as LM-O's driller), with symmetric objects turned by their own declared symmetries: a box turned 180
+    degrees about its z axis (``symmetries_discrete``) and a cylinder turned about its axis
+    (``symmetries_continuous``). Every metric is 1.0, and the output says once that R was re-orthonormalised."""
+    import json
+
+    import trimesh
+    from scipy.spatial.transform import Rotation
+    from typer.testing import CliRunner
+
+    from pcdet.cli import app
+    from pcdet.io.bop import results_row, write_results_csv
+    from pcdet.library import ModelLibrary
+    from pcdet.synth import SynthConfig, synthesize
+
+    folder = tmp_path / "models"
+    folder.mkdir()
+    trimesh.creation.box(extents=(60, 40, 30)).export(folder / "obj_000001.ply")
+    trimesh.creation.cylinder(radius=25, height=70, sections=128).export(folder / "obj_000002.ply")
+    (folder / "obj_000003.ply").write_bytes(Path(library.by_id(1).path).read_bytes())  # the bracket: no symmetry
+    lib = ModelLibrary.from_folder(folder, units="mm")
+    ds_dir = synthesize(lib, tmp_path / "ds", SynthConfig(scenes=2, objects=3, seed=3))
+    info_path = ds_dir / "models" / "models_info.json"
+    info = json.loads(info_path.read_text())
+    flip_z = np.diag([-1.0, -1.0, 1.0, 1.0])
+    info["1"]["symmetries_discrete"] = [flip_z.reshape(-1).tolist()]
+    info["2"]["symmetries_continuous"] = [{"axis": [0, 0, 1], "offset": [0, 0, 0]}]
+    info_path.write_text(json.dumps(info))
+    turn = {1: flip_z, 2: np.eye(4)}
+    turn[2][:3, :3] = Rotation.from_rotvec([0, 0, 1.0]).as_matrix()
+    ds = BopDataset(ds_dir)
+    rows, written = [], 0
+    for img in ds:
+        for g in ds.gt(img):
+            T = g["T_cam_model"] @ turn.get(g["obj_id"], np.eye(4))
+            T[:3, :3] = np.round(T[:3, :3] * (1 + 1e-3), 4)  # stored to a few decimals and 2e-3 off orthonormal
+            rows.append(results_row(img.scene_id, img.im_id, g["obj_id"], 1.0, T, -1))
+            written += 1
+    write_results_csv(tmp_path / "r.csv", rows)
+    res = CliRunner().invoke(app, ["eval", str(ds_dir), str(tmp_path / "r.csv"), "--json", str(tmp_path / "e.json")])
+    assert res.exit_code == 0, res.output
+    assert res.output.count("re-orthonormalised") == 1 and f"in {written} row(s)" in res.output
+    overall = json.loads((tmp_path / "e.json").read_text())["overall"]
+    assert overall["instances"] == overall["estimates"] == 6
+    for k in ("recall_add", "recall_adds", "precision_adds", "ar_mssd", "ar_mspd", "ar_vsd", "ar"):
+        assert overall[k] == pytest.approx(1.0), (k, overall)
+
+
+def test_r_far_from_a_rotation_is_refused(tmp_path):
+    """Beyond the tolerance that real annotations need (an R 0.05 off, a reflection) a row is refused."""
+    from pcdet.errors import InputError
+    from pcdet.io.bop import read_results_csv
+
+    head = "scene_id,im_id,obj_id,score,R,t,time\n"
+    p = tmp_path / "r.csv"
+    for R in ("1.05 0 0 0 1 0 0 0 1", "-1 0 0 0 1 0 0 0 1"):
+        p.write_text(head + f"1,0,1,0.5,{R},0 0 500,-1\n")
+        with pytest.raises(InputError, match="line 2: R is not a rotation"):
+            read_results_csv(p)
+    p.write_text(head + "1,0,1,0.5,1.002 0 0 0 1 0 0 0 1,0 0 500,-1\n")
+    (row,) = read_results_csv(p)
+    assert row["R_deviation"] == pytest.approx(0.002 * 2.002)
+    np.testing.assert_allclose(row["T_cam_model"][:3, :3], np.eye(3), atol=1e-12)
