@@ -188,3 +188,34 @@ def test_a_file_that_is_not_ply_is_named(tmp_path):
     with pytest.raises(InputError) as e:
         read_cloud(tmp_path / "x.ply")
     assert "x.ply: not a PLY file" in str(e.value)
+
+
+@pytest.mark.parametrize("layout", ["binary_little_endian", "binary_big_endian", "ascii", "faces_first"])
+def test_a_ply_reads_back_the_values_written(tmp_path, rng, layout):
+    """A cloud with float normals and uchar colours, written by plyfile as binary (either byte order), as ASCII,
+    and with a face element before the vertices (read by plyfile rather than numpy on the header's layout): the
+    points and normals come back as written (float32), the colours divided by 255."""
+    import plyfile
+
+    from pcdet.io.clouds import read_cloud
+
+    n = 500
+    pts, nrm = rng.normal(size=(n, 3)).astype(np.float32), rng.normal(size=(n, 3)).astype(np.float32)
+    col = rng.integers(0, 256, size=(n, 3)).astype(np.uint8)
+    v = np.empty(n, dtype=[(k, "f4") for k in ("x", "y", "z", "nx", "ny", "nz")] + [(k, "u1") for k in
+                                                                                    ("red", "green", "blue")])
+    for i, k in enumerate("xyz"):
+        v[k], v["n" + k] = pts[:, i], nrm[:, i]
+    for i, k in enumerate(("red", "green", "blue")):
+        v[k] = col[:, i]
+    vertex = plyfile.PlyElement.describe(v, "vertex")
+    faces = np.empty(0, dtype=[("vertex_indices", "i4", (3,))])
+    face = plyfile.PlyElement.describe(faces, "face")
+    elements = [face, vertex] if layout == "faces_first" else [vertex]
+    big = layout == "binary_big_endian"
+    p = tmp_path / "c.ply"
+    plyfile.PlyData(elements, text=layout == "ascii", byte_order=">" if big else "<").write(str(p))
+    cd = read_cloud(p)
+    np.testing.assert_array_equal(cd.points, pts.astype(np.float64))
+    np.testing.assert_array_equal(cd.normals, nrm.astype(np.float64))
+    np.testing.assert_allclose(cd.colors, col / 255.0)

@@ -149,84 +149,120 @@ def check_ply_complete(path) -> None:
                              f"holds {have} lines after the header", path)
 
 
-def _open3d_reads_ply(path: Path) -> bool:
-    """Whether open3d's reader is to read the PLY: binary (in an ASCII file it stops at an ``inf`` and returns the
-    rest of the points undefined), no obj_info lines, only vertex and face elements (it refuses others, such as a
-    Cyberware scan's range_grid); ``InputError`` when the file is not PLY at all."""
-    lines = _ply_head(path)[0]
-    fmt, elements = _ply_layout(lines)
-    names = {name for name, _, _, _ in elements}
-    return fmt != b"ascii" and not any(ln.startswith(b"obj_info") for ln in lines) and names <= {"vertex", "face"}
+_PLY_DTYPES = {b"char": "i1", b"uchar": "u1", b"int8": "i1", b"uint8": "u1", b"short": "i2", b"ushort": "u2",
+               b"int16": "i2", b"uint16": "u2", b"int": "i4", b"uint": "u4", b"int32": "i4", b"uint32": "u4",
+               b"float": "f4", b"float32": "f4", b"double": "f8", b"float64": "f8"}
+_PLY_ORDER = {b"binary_little_endian": "<", b"binary_big_endian": ">"}
+_FLOAT_TYPES = (b"float", b"float32", b"double", b"float64")
 
 
-def _ascii_ply_vertices(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None] | None:
-    """(points (N, 3), normals (N, 3) or None, colours (N, 3) in [0, 1] or None), float64, of an ASCII PLY whose
-    first element is ``vertex`` with scalar properties (point clouds; the Cyberware scans: a vertex list followed
-    by a range grid), read with numpy; ``nan`` and ``inf`` read as such. None for any other layout."""
-    with open(path, "rb") as f:
-        header = []
-        for line in f:
-            header.append(line.strip())
-            if line.strip() == b"end_header" or len(header) > 500:
-                break
-        if header[-1] != b"end_header" or b"format ascii 1.0" not in header:
-            return None
-        elements = [h.split() for h in header if h.startswith(b"element ")]
-        if not elements or elements[0][1] != b"vertex":
-            return None
-        first = header.index(b" ".join(elements[0]))
-        props = []
-        for h in header[first + 1:]:
-            if not h.startswith(b"property "):
-                break
-            props.append(h.split())
-        names = [p[-1] for p in props]
-        if any(p[1] == b"list" for p in props) or not {b"x", b"y", b"z"} <= set(names):
-            return None
-        n = int(elements[0][2])
-        rows = b"".join(f.readline() for _ in range(n))
-    try:
-        a = np.array(rows.split(), dtype=np.float64)
-    except ValueError as e:  # a token that is not a number
-        raise InputError(f"vertex list holds a value that is not a number ({e})", path) from None
-    if a.size != n * len(props):
-        raise InputError(f"vertex list holds {a.size} numbers, expected {n} x {len(props)}", path)
-    a = a.reshape(n, len(props))
-
+def _vertex_columns(table, names: list[bytes], types: list[bytes]):
+    """(points (N, 3), normals (N, 3) or None, colours (N, 3) in [0, 1] or None), float64, from a vertex table
+    whose columns ``table(name)`` are named ``names`` and typed ``types`` (PLY type names)."""
     def columns(*want: bytes) -> np.ndarray | None:
-        return a[:, [names.index(c) for c in want]] if all(c in names for c in want) else None
+        return np.stack([np.asarray(table(c), np.float64).reshape(-1) for c in want], axis=1) \
+            if all(c in names for c in want) else None
 
-    nrm = columns(b"nx", b"ny", b"nz")
     col = columns(b"red", b"green", b"blue")
-    if col is not None and props[names.index(b"red")][1] not in (b"float", b"float32", b"double", b"float64"):
+    if col is not None and types[names.index(b"red")] not in _FLOAT_TYPES:
         col = col / 255.0  # integer colours are 0-255
-    return columns(b"x", b"y", b"z"), nrm, col
+    return columns(b"x", b"y", b"z"), columns(b"nx", b"ny", b"nz"), col
 
 
-def _ply_with_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """(points (N, 3), normals (N, 3) or None, colours (N, 3) in [0, 1] or None) of a PLY's vertex element, read
-    with trimesh (the vertices of a mesh, whatever other elements the file has)."""
-    import trimesh
+def _ply_vertex_header(path: Path):
+    """(format, vertex count, [(name, type)] of the vertex properties, data offset) of a PLY whose first element is
+    ``vertex`` with scalar properties of known types including x, y and z: the layout numpy reads directly (every
+    scan of the Stanford repository, the clouds open3d and PCL write). None for any other layout."""
+    lines, start = _ply_head(path)
+    if start is None:
+        return None
+    fmt = next((ln.split()[1] for ln in lines if ln.startswith(b"format ") and len(ln.split()) >= 2), b"")
+    elements = [i for i, ln in enumerate(lines) if ln.startswith(b"element ")]
+    if not elements or len(lines[elements[0]].split()) != 3:
+        return None
+    _, name, count = lines[elements[0]].split()
+    if name != b"vertex" or not count.isdigit():
+        return None
+    props = []
+    for ln in lines[elements[0] + 1:]:
+        w = ln.split()
+        if not w or w[0] in (b"comment", b"obj_info"):
+            continue
+        if w[0] != b"property":
+            break
+        if len(w) != 3 or w[1] not in _PLY_DTYPES:
+            return None  # a list property, or a type numpy is not told here
+        props.append((w[2], w[1]))
+    names = [n for n, _ in props]
+    if not {b"x", b"y", b"z"} <= set(names) or len(set(names)) != len(names):
+        return None
+    return fmt, int(count), props, start
 
-    rows = _ascii_ply_vertices(path)
-    if rows is not None:  # trimesh's ASCII parser takes 0.4 s on a 40k-point scan, numpy 0.03 s
-        return rows
+
+def _numpy_ply_vertices(path: Path):
+    """The vertex element of a PLY in the layout of ``_ply_vertex_header``, read with numpy (binary: one
+    ``frombuffer`` over the header's record layout; ASCII: the numbers of the vertex lines), else None."""
+    head = _ply_vertex_header(path)
+    if head is None:
+        return None
+    fmt, n, props, start = head
+    names, types = [p for p, _ in props], [t for _, t in props]
+    if fmt in _PLY_ORDER:
+        dtype = np.dtype([(p.decode("ascii", "replace"), _PLY_ORDER[fmt] + _PLY_DTYPES[t]) for p, t in props])
+        with open(path, "rb") as f:
+            f.seek(start)
+            data = f.read(n * dtype.itemsize)
+        if len(data) < n * dtype.itemsize:
+            raise InputError(f"PLY file is truncated: {n} vertices need {n * dtype.itemsize} bytes, the file holds "
+                             f"{len(data)}", path)
+        rec = np.frombuffer(data, dtype, count=n)
+        return _vertex_columns(lambda c: rec[c.decode("ascii", "replace")], names, types)
+    if fmt == b"ascii":
+        with open(path, "rb") as f:
+            f.seek(start)
+            rows = b"".join(f.readline() for _ in range(n))
+        try:
+            a = np.array(rows.split(), dtype=np.float64)
+        except ValueError as e:  # a token that is not a number
+            raise InputError(f"vertex list holds a value that is not a number ({e})", path) from None
+        if a.size != n * len(props):
+            raise InputError(f"vertex list holds {a.size} numbers, expected {n} x {len(props)}", path)
+        a = a.reshape(n, len(props))
+        return _vertex_columns(lambda c: a[:, names.index(c)], names, types)
+    return None
+
+
+def _ply_with_plyfile(path: Path):
+    """(points (N, 3), normals (N, 3) or None, colours (N, 3) in [0, 1] or None) of a PLY's vertex element in any
+    other layout (vertex after another element, list properties beside it), read with plyfile."""
+    import plyfile
+
     try:
-        geom = trimesh.load(str(path), process=False)
-    except Exception as e:  # trimesh raises many types for unreadable files; report it as the file's problem
+        data = plyfile.PlyData.read(str(path))
+        vertex = data["vertex"]
+    except KeyError:
+        raise InputError("PLY file has no vertex element", path) from None
+    except Exception as e:  # plyfile raises its own and numpy's errors for malformed files: the file's problem
         raise InputError(f"cannot parse PLY ({type(e).__name__}: {e})", path) from None
-    pts = np.asarray(getattr(geom, "vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
-    raw = getattr(geom, "metadata", {}).get("_ply_raw", {}).get("vertex", {}).get("data")
-    names = (raw.dtype.names or ()) if isinstance(raw, np.ndarray) else tuple(raw or ())
-    nrm = None
-    if all(k in names for k in ("nx", "ny", "nz")):
-        nrm = np.stack([np.asarray(raw[k], np.float64).reshape(-1) for k in ("nx", "ny", "nz")], axis=1)
-    cols = getattr(getattr(geom, "visual", None), "vertex_colors", None)
-    if cols is None:
-        cols = getattr(geom, "colors", None)
-    col = None
-    if cols is not None and len(cols) == len(pts) and len(pts):
-        col = np.asarray(cols, np.float64)[:, :3] / 255.0
+    props = {p.name.encode(): p for p in vertex.properties}
+    names = list(props)
+    types = [str(getattr(p, "val_dtype", "")).encode() for p in props.values()]
+    types = [b"float" if t.startswith((b"f", b"d")) else b"int" for t in types]
+    try:
+        return _vertex_columns(lambda c: vertex[c.decode()], names, types)
+    except (ValueError, TypeError) as e:
+        raise InputError(f"cannot parse PLY vertex element ({e})", path) from None
+
+
+def read_ply_vertices(path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(points (N, 3), normals (N, 3) or None, colours (N, 3) in [0, 1] or None), float64, of a PLY's vertex
+    element: numpy on the header's layout where the vertices come first (binary or ASCII; ``nan`` and ``inf``
+    read as such), plyfile otherwise. ``InputError`` naming the file for anything unreadable."""
+    path = Path(path)
+    rows = _numpy_ply_vertices(path)
+    pts, nrm, col = rows if rows is not None else _ply_with_plyfile(path)
+    if pts is None:
+        raise InputError("PLY vertex element has no x, y, z properties", path)
     return pts, nrm, col
 
 
@@ -236,8 +272,6 @@ def read_cloud(path, keep_invalid: bool = False) -> CloudData:
     Non-finite points are dropped unless ``keep_invalid`` (then an organized cloud keeps its H x W layout).
     Raises ``InputError`` when the file holds no finite point.
     """
-    from .._o3d import o3d
-
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: point cloud not found")
@@ -262,13 +296,11 @@ def read_cloud(path, keep_invalid: bool = False) -> CloudData:
     else:
         if suffix == ".ply":
             check_ply_complete(path)
-        elif suffix == ".pcd":
-            check_pcd_complete(path)
-        if suffix == ".ply" and not _open3d_reads_ply(path):
-            # `_ply_with_trimesh` reads any PLY (an ASCII vertex list with numpy, `inf` and `nan` as numbers,
-            # dropped below)
-            pts, nrm, col = _ply_with_trimesh(path)
+            pts, nrm, col = read_ply_vertices(path)
         else:
+            from .._o3d import o3d  # only PCD needs open3d: its import costs about a second of every command
+
+            check_pcd_complete(path)
             pc = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
             pts = np.asarray(pc.points, dtype=np.float64)
             nrm = np.asarray(pc.normals, dtype=np.float64) if pc.has_normals() else None

@@ -61,12 +61,12 @@ def _mesh_colours(geom) -> np.ndarray | None:
 def _read_geometry(path: Path):
     """(vertices (V,3), faces (F,3) or None, normals (V,3) or None, colours (V,3) in [0, 1] or None) in file
     units."""
-    import trimesh
-
     suffix = path.suffix.lower()
     if suffix in CLOUD_ONLY_SUFFIXES or (suffix == ".ply" and not ply_elements(path).get("face", 0)):
         cd = read_cloud(path)  # a scanned cloud: the cloud reader is faster (and checks the file is whole)
         return cd.points, None, cd.normals, cd.colors
+    import trimesh  # meshes only: its import costs a few tenths of a second
+
     if suffix == ".ply":
         check_ply_complete(path)
     try:
