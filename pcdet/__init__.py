@@ -15,17 +15,44 @@ from a PipelineConfig (load_pipeline, or PipelineConfig().replace(...)); registe
 Recordings, tracking, synthetic data and the BOP metrics are in pcdet.runner, pcdet.tracking, pcdet.synth
 and pcdet.evaluate; the command line is ``pcdet --help``. Units: metres; poses are T_<to>_<from>.
 """
-from .camera import Camera
-from .config import PipelineConfig, load_pipeline
-from .detector import Detection, DetectionResult, Detector
-from .errors import InputError
-from .frame import Frame
-from .library import ModelLibrary
-from .model import ObjectModel
-from .register import RegisterConfig, Registration, register
+from __future__ import annotations
+
+import importlib
+import sys
+import types
 
 __version__ = "0.1.0"
 
-__all__ = ["Camera", "Frame", "ModelLibrary", "ObjectModel", "Detector", "Detection", "DetectionResult",
-           "PipelineConfig", "load_pipeline", "register", "Registration", "RegisterConfig", "InputError",
-           "__version__"]
+# The public names and the module each lives in: imported on first use (PEP 562), so that ``import pcdet`` and the
+# command's start stay cheap and a command loads only the stages it runs.
+_PUBLIC = {"Camera": "camera", "Frame": "frame", "ModelLibrary": "library", "ObjectModel": "model",
+           "Detector": "detector", "Detection": "detector", "DetectionResult": "detector",
+           "PipelineConfig": "config", "load_pipeline": "config", "register": "register",
+           "Registration": "register", "RegisterConfig": "register", "InputError": "errors"}
+
+__all__ = list(_PUBLIC) + ["__version__"]
+
+
+def __getattr__(name: str):
+    if name in _PUBLIC:
+        value = getattr(importlib.import_module(f".{_PUBLIC[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'pcdet' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_PUBLIC))
+
+
+class _Package(types.ModuleType):
+    """Importing the submodule ``pcdet.register`` binds the package's ``register`` to that module; the public
+    ``pcdet.register`` is the function, as the eager imports of earlier versions left it."""
+
+    def __setattr__(self, name, value):
+        if name == "register" and isinstance(value, types.ModuleType):
+            value = value.register
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package

@@ -19,12 +19,20 @@ and 1 degree of that reference.
 one .conf whose "bmesh" lines give their poses): each scan paired with the ``--steps`` next ones in the .conf's
 order, round the end (on a turntable set such as the dragon's, its neighbours 1 and 2 positions away).
 
+``--command``: also the cost of the command as a script calls it once a pair: the wall time of ``pcdet register
+SRC TGT`` as a process (start, reading both PLY files, registering, printing), beside the in-process time of
+reading the two files and of ``register`` on the arrays, and the start of ``pcdet register --help`` alone.
+
 Run:  python scripts/bench_register.py [--limit N] [--gaps 24 48] [--fragments N] [--scans DIR ... [--steps 1 2]]
+      [--command]
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import shutil
+import subprocess
+import sys
 import time
 import warnings
 from pathlib import Path
@@ -191,6 +199,8 @@ def main() -> None:
                     help="With --scans: each scan with the scans this many places on in the .conf (default: 1 2).")
     ap.add_argument("--fragments", type=int, default=0,
                     help="Instead: Open3D's two room-scale fragments under this many rigid motions.")
+    ap.add_argument("--command", action="store_true",
+                    help="Also time `pcdet register SRC TGT` as a process a pair, against reading + registering.")
     a = ap.parse_args()
     if a.fragments:
         fragments(a.fragments)
@@ -203,13 +213,24 @@ def main() -> None:
         todo = [p for d in a.scans for p in scan_pairs(d, tuple(a.steps))][: a.limit or None]
     else:
         todo = pairs(tuple(a.gaps))[: a.limit or None]
-    print("| pair | pcdet error (mm) | pcdet s | Open3D error (mm) | Open3D s |")
-    print("|---|---|---|---|---|")
-    rows = []
+    exe = shutil.which("pcdet") or str(Path(sys.executable).with_name("pcdet"))
+    if a.command:
+        starts = []
+        for _ in range(5):
+            t0 = time.perf_counter()
+            subprocess.run([exe, "register", "--help"], check=True, capture_output=True)
+            starts.append(time.perf_counter() - t0)
+        print(f"`pcdet register --help` (the command's start): median {np.median(starts):.3f} s over 5 runs\n")
+    extra = " command s | read s |" if a.command else ""
+    print("| pair | pcdet error (mm) | pcdet s | Open3D error (mm) | Open3D s |" + extra)
+    print("|---|---|---|---|---|" + ("---|---|" if a.command else ""))
+    rows, command = [], []
     for src, tgt, T_true, label in todo:
+        t0 = time.perf_counter()
         sp = points(src)
-        voxel = diameter(sp) / 40.0
         tp_ = points(tgt)
+        t_read = time.perf_counter() - t0
+        voxel = diameter(sp) / 40.0
         t0 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -224,7 +245,15 @@ def main() -> None:
         t_o = time.perf_counter() - t0
         e_o = rms_displacement(T_o, T_true, sp)
         rows.append((label, e_p, t_p, e_o, t_o))
-        print(f"| {label} | {e_p * 1000:.2f} | {t_p:.2f} | {e_o * 1000:.2f} | {t_o:.2f} |", flush=True)
+        cells = ""
+        if a.command:
+            t0 = time.perf_counter()
+            subprocess.run([exe, "register", str(src), str(tgt), "--units", "m", "--voxel", repr(voxel)],
+                           check=True, capture_output=True)
+            t_c = time.perf_counter() - t0
+            command.append((t_c, t_read, t_p))
+            cells = f" {t_c:.2f} | {t_read:.3f} |"
+        print(f"| {label} | {e_p * 1000:.2f} | {t_p:.2f} | {e_o * 1000:.2f} | {t_o:.2f} |{cells}", flush=True)
     print("\n| method | within 2 mm | median s/pair | time vs pcdet |")
     print("|---|---|---|---|")
     tp = np.median([r[2] for r in rows])
@@ -232,6 +261,11 @@ def main() -> None:
         ok = sum(r[ei] < SUCCESS_M for r in rows)
         tm = np.median([r[ti] for r in rows])
         print(f"| {name} | {ok}/{len(rows)} | {tm:.3f} | {tm / tp:.2f}x |")
+    if command:
+        wall, read, reg = (np.median([x[i] for x in command]) for i in range(3))
+        print("\n| a pair, median s | command (process) | reading both files | register on arrays | the rest |")
+        print("|---|---|---|---|---|")
+        print(f"| pcdet | {wall:.3f} | {read:.3f} | {reg:.3f} | {wall - read - reg:.3f} |")
 
 
 if __name__ == "__main__":

@@ -84,9 +84,10 @@ def write_results_csv(path, rows: list[list[str]]) -> Path:
 
 def read_results_csv(path) -> list[dict]:
     """Rows as dicts with ``scene_id, im_id, obj_id, score, T_cam_model (4, 4, m), time``, ``line`` (the file
-    line) and ``R_deviation`` (max |R R^T - I| of the row as written). An R orthonormal to within
-    ``ROTATION_TOLERANCE`` (and beyond ``ROTATION_EXACT``) is replaced by its nearest rotation, as real annotations need; a row with a non-finite
-    number, a reflection (det R < 0) or an R further from a rotation is refused with the file and the line."""
+    line) and ``R_deviation`` (max |R R^T - I| of the row as written). An R off a rotation by more than
+    ``ROTATION_EXACT`` and at most ``ROTATION_TOLERANCE`` is replaced by its nearest rotation, as real annotations
+    need; a row with a non-finite number, a reflection (det R < 0) or an R further from a rotation is refused with
+    the file and the line."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: results file not found")
