@@ -238,6 +238,20 @@ class _KeyframeICP:
             self.keys = [(transform(C, p), n @ C[:3, :3].T, w, C @ T) for p, n, w, T in self.keys]
             self._build()
 
+    def state(self) -> dict:
+        """The keyframes (each its points, normals, weights and camera), their grid spacing and the frames
+        recovered, as plain data; the map is rebuilt from them (``load_state``) exactly as it was."""
+        return {"keyframes": [{"points": p, "normals": n, "weights": w, "T_world_cam": T} for p, n, w, T in self.keys],
+                "voxel": getattr(self, "_vox", None), "recovered": self.recovered}
+
+    def load_state(self, state: dict) -> None:
+        self.keys = [(k["points"], k["normals"], k["weights"], k["T_world_cam"]) for k in state["keyframes"]]
+        self.recovered = int(state["recovered"])
+        self.map = None
+        if self.keys:
+            self._vox = state["voxel"]
+            self._build()
+
     def _add_key(self, pts: np.ndarray, vox: float, T_world_cam: np.ndarray) -> None:
         p, n = _key_samples(pts, vox)
         # not over this frame's median depth as ICP's weights (_depth_weights): a map cell mixes keyframes
@@ -292,6 +306,20 @@ class Odometry:
         self.T = T_new
         if self.kiss is not None:
             self.kiss.last_pose = self.T.copy()
+
+    def state(self) -> dict:
+        """The pose, the last step, the frames skipped and the keyframe map as plain data (``pcdet.io.checkpoint``);
+        ``ValueError`` for KISS-ICP, whose state cannot be saved."""
+        if self.kiss is not None:
+            raise ValueError("KISS-ICP odometry's state cannot be saved")
+        return {"T": self.T, "last_step": self.last_step, "gap": self.gap,
+                "map": None if self.f2f is None else self.f2f.state()}
+
+    def load_state(self, state: dict) -> None:
+        """Continue from ``state()``: the next step gives what it would have given."""
+        self.T, self.last_step, self.gap = state["T"], state["last_step"], int(state["gap"])
+        if self.f2f is not None:
+            self.f2f.load_state(state["map"])
 
     def skip(self) -> None:
         """A frame could not be read: the next step predicts two frames' worth of motion (constant velocity)."""

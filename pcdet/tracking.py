@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -372,25 +372,40 @@ class Tracker:
 
     def state(self, result: TrackingResult) -> bytes:
         """The tracker's state (odometry, tracks, frame index, whether a detection is due to confirm map poses)
-        and ``result`` so far, as bytes for ``restore``; the detector is not part of it. KISS-ICP's state cannot be
-        saved, so trackers whose odometry uses it cannot checkpoint."""
-        import pickle
+        and ``result`` so far, as a versioned checkpoint of plain data for ``restore`` (``pcdet.io.checkpoint``);
+        the detector is not part of it. KISS-ICP's state cannot be saved, so trackers whose odometry uses it
+        cannot checkpoint."""
+        from .io.checkpoint import pack
 
         if self.odo.kiss is not None:
             raise InputError("tracking with KISS-ICP odometry cannot be checkpointed (its state cannot be saved); "
                              "use odometry method 'icp'")
-        return pickle.dumps({"odo": self.odo, "tracks": self.tracks, "index": self.index, "result": result,
-                             "unconfirmed": self._unconfirmed}, protocol=4)
+        return pack("tracking", {
+            "odometry": self.odo.state(), "tracks": [asdict(t) for t in self.tracks],
+            "index": self.index, "unconfirmed": self._unconfirmed,
+            "result": None if result is None else {
+                "camera_poses": result.camera_poses, "modes": result.modes, "seconds": result.seconds,
+                "detections": [[asdict(d) for d in ds] for ds in result.detections]}})
 
-    def restore(self, state: bytes) -> TrackingResult:
+    def restore(self, state: bytes, path=None) -> TrackingResult | None:
         """Continue from ``state(result)``: odometry, tracks, frame index and a confirming detection due, as they
-        were; returns the result so far, to hand to ``run``."""
-        import pickle
+        were; returns the result so far, to hand to ``run``. ``InputError`` naming ``path`` for bytes that are no
+        tracking checkpoint of this version."""
+        from .io.checkpoint import unpack
 
-        d = pickle.loads(state)
-        self.odo, self.tracks, self.index = d["odo"], d["tracks"], d["index"]
-        self._unconfirmed = d.get("unconfirmed", False)
-        return d["result"]
+        d = unpack(state, "tracking", path or "tracking checkpoint")
+        try:
+            self.odo.load_state(d["odometry"])
+            self.tracks = [Track(**{**t, "frames": list(t["frames"]), "poses": list(t["poses"]),
+                                    "scores": list(t["scores"]), "modes": list(t["modes"])}) for t in d["tracks"]]
+            self.index, self._unconfirmed = int(d["index"]), bool(d["unconfirmed"])
+            r = d["result"]
+            if r is None:
+                return None
+            return TrackingResult(self.tracks, list(r["camera_poses"]), list(r["modes"]), list(r["seconds"]),
+                                  [[Detection(**x) for x in ds] for ds in r["detections"]])
+        except (KeyError, TypeError) as e:
+            raise InputError(f"damaged tracking checkpoint ({type(e).__name__}: {e})", path) from None
 
 
 def frames_by_scene(rec) -> dict[int, list]:
@@ -458,11 +473,9 @@ def track_into(rec, library, cfg, out, tcfg: TrackingConfig | None = None, *, re
     """Track every scene of ``rec`` in this process and write into the folder ``out`` what detection writes:
     ``frames/<scene>_<image>.json`` (the objects seen, camera frame) as each frame is done, then
     ``results.csv`` (BOP, rebuilt from the frame files), ``config.toml``, ``failures.json`` and ``tracks.json``.
-    After each frame the tracker's state (odometry, map, tracks) goes to ``tracking_state/<scene>.pkl``, so a
+    After each frame the tracker's state (odometry, map, tracks) goes to ``tracking_state/<scene>.npz``, so a
     killed run continued with ``resume`` picks up where its last checkpoint was and writes the same
     ``results.csv`` as a run that never stopped. ``on_frame(i, mode, seconds)`` after each frame tracked."""
-    import pickle
-
     out = Path(out)
     tcfg = tcfg or TrackingConfig()
     pipeline = cfg.to_dict()
@@ -474,13 +487,20 @@ def track_into(rec, library, cfg, out, tcfg: TrackingConfig | None = None, *, re
     results = {}
     for sid, refs in scenes.items():
         tracker = Tracker(det, tcfg)
-        ck = state_dir / f"{sid:06d}.pkl"
+        ck = state_dir / f"{sid:06d}.npz"
         partial = None
+        old = state_dir / f"{sid:06d}.pkl"
+        if resume and old.is_file() and not ck.is_file():
+            raise InputError("a tracking checkpoint of an earlier pcdet (pickled), which this one does not read: "
+                             "start over with --overwrite", old)
         if resume and ck.is_file():
             try:
-                partial = tracker.restore(ck.read_bytes())
-            except (OSError, pickle.UnpicklingError, EOFError, KeyError):
-                raise InputError("its tracking checkpoint cannot be read: start over with --overwrite", ck) from None
+                partial = tracker.restore(ck.read_bytes(), ck)
+            except InputError as e:
+                raise InputError(f"{e.problem}: start over with --overwrite", ck) from None
+            except OSError as e:
+                raise InputError(f"its tracking checkpoint cannot be read ({e}): start over with --overwrite",
+                                 ck) from None
 
         def checkpoint(i, ref, res, trk):
             write_tracked_frame(out, rec, ref, res, i, pipeline=pipeline, version=version)
