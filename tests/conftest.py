@@ -63,17 +63,37 @@ def random_pose(rng, scale_t=0.1) -> np.ndarray:
     return T
 
 
-def kill_after_frames(cmd: list[str], out: Path, n: int, timeout: float = 180.0) -> int:
-    """Start ``cmd`` (a ``pcdet run`` into ``out``), SIGKILL it once ``n`` frame files are in ``out/frames``,
-    and return how many were written by then."""
-    import signal
-    import subprocess
-    import time
+_KILL_AFTER = """
+import os, signal, sys
+from pathlib import Path
 
-    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.time() + timeout
-    while len(list((out / "frames").glob("*.json"))) < n and time.time() < deadline and p.poll() is None:
-        time.sleep(0.05)
-    p.send_signal(signal.SIGKILL)
-    p.wait()
-    return len(list((out / "frames").glob("*.json")))
+frames, n = Path(sys.argv[1]), int(sys.argv[2])
+replace = os.replace
+
+
+def replace_then_maybe_die(src, dst, *a, **k):
+    replace(src, dst, *a, **k)
+    if Path(dst).parent == frames and len(list(frames.glob("*.json"))) >= n:
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+os.replace = replace_then_maybe_die
+sys.argv = ["pcdet"] + sys.argv[3:]
+from pcdet.cli import main
+main()
+"""
+
+
+def kill_after_frames(args: list[str], out: Path, n: int) -> int:
+    """Run ``pcdet ARGS`` (a run into ``out``) in a process that SIGKILLs itself the moment its ``n``-th frame
+    file lands in ``out/frames`` (every output goes through an atomic rename, which the process watches), and
+    return how many frame files there are then. The kill follows the run's own progress, never a clock, so a
+    slow or a fast machine interrupts it at the same frame."""
+    import subprocess
+    import sys
+
+    frames = out / "frames"
+    p = subprocess.run([sys.executable, "-c", _KILL_AFTER, str(frames), str(n), *args], capture_output=True,
+                       text=True)
+    assert p.returncode == -9, f"the run was not killed (exit {p.returncode}): {p.stderr[-2000:]}"
+    return len(list(frames.glob("*.json")))

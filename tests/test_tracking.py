@@ -158,16 +158,56 @@ def test_killed_tracking_run_resumed_gives_the_same_results(recording, tracked, 
     from .conftest import kill_after_frames
 
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "pcdet.cli", "run", str(recording), "--out", str(out), "--track",
-           "--redetect-every", "0"]
-    done = kill_after_frames(cmd, out, 4)
-    assert 4 <= done < 20, f"{done} frames written before the kill: the test did not interrupt the run"
+    args = ["run", str(recording), "--out", str(out), "--track", "--redetect-every", "0"]
+    cmd = [sys.executable, "-m", "pcdet.cli", *args]
+    done = kill_after_frames(args, out, 4)
+    assert done == 4, f"{done} frames written before the kill, 4 expected"
+    assert len(list((out / "tracking_state").glob("*.npz"))) == 1
     assert not (out / "results.csv").exists()
     r = subprocess.run(cmd + ["--resume"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert (out / "results.csv").read_bytes() == (tracked / "results.csv").read_bytes()
     a, b = json.loads((out / "tracks.json").read_text()), json.loads((tracked / "tracks.json").read_text())
     assert a["scenes"][0]["camera_poses"] == b["scenes"][0]["camera_poses"]
+
+
+def test_a_checkpoint_is_plain_data_and_another_version_is_refused_in_one_line(recording, tracked, tmp_path):
+    """The tracking checkpoint names no Python class (numpy reads every entry without pickle), so moving or renaming
+    one leaves it readable; a checkpoint of another version, or an earlier pcdet's pickled one, stops --resume with
+    one ``error:`` line that names the file, never a traceback."""
+    import io
+    import shutil
+
+    from pcdet.io.checkpoint import VERSION
+
+    ck = tracked / "tracking_state" / "000001.npz"
+    data = ck.read_bytes()
+    with np.load(io.BytesIO(data), allow_pickle=False) as z:
+        head = json.loads(str(z["state.json"]))
+        assert all(z[k].dtype != object for k in z.files)
+    assert head["version"] == VERSION and "pcdet." not in json.dumps(head) and "Track" not in json.dumps(head)
+    for case in ("version", "pickled"):
+        out = tmp_path / case
+        shutil.copytree(tracked, out)
+        state = out / "tracking_state" / "000001.npz"
+        if case == "version":
+            head["version"] = VERSION + 1
+            with np.load(io.BytesIO(data), allow_pickle=False) as z:
+                arrays = {k: z[k] for k in z.files if k != "state.json"}
+            buf = io.BytesIO()
+            np.savez(buf, **{"state.json": np.array(json.dumps(head))}, **arrays)
+            state.write_bytes(buf.getvalue())
+            named, words = state, f"a checkpoint of version {VERSION + 1}; this pcdet reads version {VERSION}"
+        else:
+            state.unlink()
+            named = out / "tracking_state" / "000001.pkl"
+            named.write_bytes(b"\x80\x04pickled")
+            words = "a tracking checkpoint of an earlier pcdet (pickled)"
+        r = subprocess.run([sys.executable, "-m", "pcdet.cli", "run", str(recording), "--out", str(out), "--track",
+                            "--redetect-every", "0", "--resume"], capture_output=True, text=True)
+        lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+        assert r.returncode != 0 and "Traceback" not in r.stderr, r.stderr
+        assert lines[-1].startswith(f"error: {named}: {words}"), r.stderr
 
 
 def test_a_corrupt_frame_is_skipped_and_tracking_goes_on(recording, library, tmp_path):
