@@ -10,6 +10,7 @@ import numpy as np
 from ..camera import Camera
 from ..errors import InputError
 from ..io.jsonfile import read_json
+from ..io.text import read_text
 from .folder import FolderRecording
 
 LOG_NAMES = ("trajectory.log", "odometry.log")
@@ -17,7 +18,7 @@ LOG_NAMES = ("trajectory.log", "odometry.log")
 
 def read_log(path: Path) -> list[np.ndarray]:
     """The 4x4 matrices of a Redwood/3DMatch ``.log`` file, in file order."""
-    rows = [line.split() for line in path.read_text().splitlines() if line.strip()]
+    rows = [line.split() for line in read_text(path, "log file").splitlines() if line.strip()]
     if len(rows) % 5:
         raise InputError(f"{len(rows)} non-empty lines; a log file has 5 per pose (a header and 4 rows)", path)
     poses = []

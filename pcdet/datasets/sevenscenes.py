@@ -23,6 +23,7 @@ from ..camera import Camera
 from ..errors import InputError
 from ..frame import Frame
 from ..io.depth import image_size
+from ..io.text import read_text
 from .base import FrameRef, SequenceBase
 
 FRAME = re.compile(r"^frame-(\d+)\.depth\.png$")
@@ -34,7 +35,8 @@ NO_READING_M = 65.535  # 65535 mm: 7-Scenes' mark for a pixel without depth
 def read_matrix(path: Path, shape: tuple[int, int]) -> np.ndarray:
     """A whitespace-separated matrix of ``shape`` from a text file (``InputError`` naming the file otherwise)."""
     try:
-        M = np.array([[float(x) for x in line.split()] for line in path.read_text().splitlines() if line.strip()])
+        lines = read_text(path, "matrix file").splitlines()
+        M = np.array([[float(x) for x in line.split()] for line in lines if line.strip()])
     except ValueError as e:
         raise InputError(f"not a matrix of numbers: {e}", path) from None
     if M.shape != shape:

@@ -15,6 +15,7 @@ import numpy as np
 from ..camera import Camera
 from ..errors import InputError
 from ..frame import Frame
+from ..io.text import read_text
 from .base import FrameRef, SequenceBase, quaternion_pose
 
 TUM_DEFAULT = Camera(525.0, 525.0, 319.5, 239.5, 640, 480, 0.2)  # 5000 units per metre
@@ -23,7 +24,7 @@ TUM_DEFAULT = Camera(525.0, 525.0, 319.5, 239.5, 640, 480, 0.2)  # 5000 units pe
 def read_stamped(path: Path, columns: int) -> list[tuple[float, list[str]]]:
     """Lines ``timestamp v1 .. v{columns-1}`` of a TUM list file; '#' comments and blank lines skipped."""
     out = []
-    for n, line in enumerate(path.read_text().splitlines(), start=1):
+    for n, line in enumerate(read_text(path, "list file").splitlines(), start=1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue

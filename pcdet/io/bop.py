@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import InputError
 from .atomic import atomic_write_text
+from .text import read_text
 
 RESULTS_HEADER = ["scene_id", "im_id", "obj_id", "score", "R", "t", "time"]
 # Largest max |R R^T - I| of a results row taken for a rotation and re-orthonormalised. BOP's own annotations are
@@ -92,7 +93,7 @@ def read_results_csv(path) -> list[dict]:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: results file not found")
     out = []
-    with open(path, newline="") as f:
+    with io.StringIO(read_text(path, "results file"), newline="") as f:
         r = csv.DictReader(f)
         missing = set(RESULTS_HEADER[:6]) - set(r.fieldnames or [])
         if missing:

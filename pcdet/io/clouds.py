@@ -1,6 +1,7 @@
 """Point-cloud files (PLY, PCD, XYZ/PTS/TXT) to numpy, keeping organisation when the file has it."""
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,18 +53,44 @@ def _pcd_shape(path: Path) -> tuple[int, int] | None:
     return None
 
 
-def check_pcd_complete(path) -> None:
-    """``InputError`` when a PCD file holds fewer points than its header's POINTS (a copy cut short): fewer data
-    lines (ascii), fewer bytes than POINTS x the point size (binary). open3d's reader returns such a file's
-    missing points undefined or none at all. Compressed data is left to the reader."""
-    path = Path(path)
+def _pcd_layout(path: Path) -> tuple[str, int, int, int]:
+    """(data kind, points, bytes a point, data offset) of a PCD file whose header is whole and consistent (the
+    FIELDS, SIZE, TYPE and COUNT lists of one length, sizes 1, 2, 4 or 8, types I, U or F, WIDTH x HEIGHT =
+    POINTS, DATA ascii, binary or binary_compressed); ``InputError`` naming the file otherwise, before open3d's
+    reader meets it (given a header cut short it fails to allocate, or reads garbage)."""
     fields, start = _pcd_header(path)
+    missing = [k for k in ("FIELDS", "SIZE", "TYPE", "WIDTH", "HEIGHT", "DATA") if not fields.get(k)]
+    if missing:
+        raise InputError(f"PCD header lacks {', '.join(missing)} (or the header is cut short)", path)
+    names, sizes, types = fields["FIELDS"], fields["SIZE"], fields["TYPE"]
+    counts = fields.get("COUNT") or ["1"] * len(names)
     try:
-        n = int(fields["POINTS"][0])
-        kind = fields["DATA"][0].lower()
-        size = sum(int(s) * int(c) for s, c in zip(fields["SIZE"], fields.get("COUNT", ["1"] * len(fields["SIZE"]))))
-    except (KeyError, IndexError, ValueError):
-        return  # a header the reader will refuse or describe itself
+        sizes_n, counts_n = [int(v) for v in sizes], [int(v) for v in counts]
+        width, height = int(fields["WIDTH"][0]), int(fields["HEIGHT"][0])
+        n = int(fields["POINTS"][0]) if fields.get("POINTS") else width * height
+    except ValueError as e:
+        raise InputError(f"PCD header holds a count that is not a whole number ({e})", path) from None
+    kind = fields["DATA"][0].lower()
+    if not len(names) == len(sizes_n) == len(types) == len(counts_n) or not {"x", "y", "z"} <= set(names):
+        raise InputError("PCD header's FIELDS, SIZE, TYPE and COUNT disagree, or name no x, y, z", path)
+    if any(v not in (1, 2, 4, 8) for v in sizes_n) or any(t.upper() not in ("I", "U", "F") for t in types) \
+            or any(c < 1 for c in counts_n):
+        raise InputError(f"PCD header has a size, type or count PCD does not define (SIZE {' '.join(sizes)}, "
+                         f"TYPE {' '.join(types)}, COUNT {' '.join(counts)})", path)
+    if width < 0 or height < 0 or n != width * height:
+        raise InputError(f"PCD header declares {n} points but WIDTH x HEIGHT is {width} x {height}", path)
+    if kind not in ("ascii", "binary", "binary_compressed"):
+        raise InputError(f"PCD data kind {kind!r} is not ascii, binary or binary_compressed", path)
+    return kind, n, sum(s * c for s, c in zip(sizes_n, counts_n)), start
+
+
+def check_pcd_complete(path) -> None:
+    """``InputError`` when a PCD file's header is not whole (``_pcd_layout``) or the file holds fewer points than
+    its header's POINTS (a copy cut short): fewer data lines (ascii), fewer bytes than POINTS x the point size
+    (binary). open3d's reader returns such a file's missing points undefined or none at all. Compressed data is
+    left to the reader."""
+    path = Path(path)
+    kind, n, size, start = _pcd_layout(path)
     if kind == "ascii":
         have = _data_lines(path.read_bytes()[start:])
         if have < n:
@@ -160,8 +187,10 @@ def _vertex_columns(table, names: list[bytes], types: list[bytes]):
     """(points (N, 3), normals (N, 3) or None, colours (N, 3) in [0, 1] or None), float64, from a vertex table
     whose columns ``table(name)`` are named ``names`` and typed ``types`` (PLY type names)."""
     def columns(*want: bytes) -> np.ndarray | None:
-        return np.stack([np.asarray(table(c), np.float64).reshape(-1) for c in want], axis=1) \
-            if all(c in names for c in want) else None
+        if not all(c in names for c in want):
+            return None
+        with np.errstate(invalid="ignore"):  # non-finite values are dropped by the caller, not warned about
+            return np.stack([np.asarray(table(c), np.float64).reshape(-1) for c in want], axis=1)
 
     col = columns(b"red", b"green", b"blue")
     if col is not None and types[names.index(b"red")] not in _FLOAT_TYPES:
@@ -283,7 +312,9 @@ def read_cloud(path, keep_invalid: bool = False) -> CloudData:
         raise InputError("point cloud is empty (0 bytes)", path)
     if suffix in (".xyz", ".xyzn", ".pts", ".txt"):
         try:
-            a = np.loadtxt(path, ndmin=2, dtype=float)
+            with warnings.catch_warnings():  # a file without numbers is refused below, in pcdet's words
+                warnings.simplefilter("ignore", UserWarning)
+                a = np.loadtxt(path, ndmin=2, dtype=float)
         except ValueError as e:
             raise InputError(f"cannot parse as whitespace-separated numbers ({e})", path) from None
         if a.size == 0:

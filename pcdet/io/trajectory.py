@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
 from .atomic import atomic_write_text
+from .text import read_text
 
 
 def format_tum(stamps: list[float], poses: list[np.ndarray]) -> str:
@@ -38,7 +39,7 @@ def read_tum(path) -> tuple[list[float], list[np.ndarray]]:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: trajectory file not found")
     stamps, poses = [], []
-    for n, line in enumerate(path.read_text().splitlines(), 1):
+    for n, line in enumerate(read_text(path, "trajectory file").splitlines(), 1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         try:
