@@ -97,3 +97,54 @@ def kill_after_frames(args: list[str], out: Path, n: int) -> int:
                        text=True)
     assert p.returncode == -9, f"the run was not killed (exit {p.returncode}): {p.stderr[-2000:]}"
     return len(list(frames.glob("*.json")))
+
+
+def _test_helpers(func) -> list:
+    """``func`` and the functions of the test suite it calls, at any depth (names its code, or code nested in it,
+    looks up among its module's globals)."""
+    import types
+
+    seen, todo, out = set(), [func], []
+    while todo:
+        f = todo.pop()
+        if not isinstance(f, types.FunctionType) or f in seen:
+            continue
+        seen.add(f)
+        out.append(f)
+        codes, names = [f.__code__], set()
+        while codes:
+            c = codes.pop()
+            names |= set(c.co_names)
+            codes += [k for k in c.co_consts if isinstance(k, types.CodeType)]
+        for n in names:
+            g = f.__globals__.get(n)
+            if isinstance(g, types.FunctionType) and g.__module__.startswith("tests"):
+                todo.append(g)
+    return out
+
+
+def _reads_shared_data(item) -> bool:
+    """Whether a test, a fixture it uses or a helper either calls (at any depth) reads ../shared/data: its source
+    calls ``shared(``, names ``SHARED_DATA`` or a path under ``shared/data``."""
+    import inspect
+
+    funcs = [getattr(item, "function", None)]
+    info = getattr(item, "_fixtureinfo", None)
+    for defs in (info.name2fixturedefs.values() if info else []):
+        funcs += [d.func for d in defs]
+    for f in [h for f in funcs if f is not None for h in _test_helpers(f)]:
+        try:
+            src = inspect.getsource(f)
+        except (OSError, TypeError):
+            continue
+        if "shared(" in src or "SHARED_DATA" in src or "shared/data" in src:
+            return True
+    return False
+
+
+def pytest_collection_modifyitems(config, items):
+    """Every test that reads ../shared/data carries ``@pytest.mark.real``, so that ``-m "not real"`` runs without
+    the data: a test that reads it unmarked is a collection error naming it."""
+    unmarked = [it.nodeid for it in items if _reads_shared_data(it) and it.get_closest_marker("real") is None]
+    if unmarked:
+        raise pytest.UsageError("tests read ../shared/data without @pytest.mark.real:\n  " + "\n  ".join(unmarked))

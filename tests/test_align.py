@@ -59,6 +59,7 @@ def _ply_points(path):
     return read_cloud(path).points
 
 
+@pytest.mark.real
 @pytest.mark.parametrize("case", range(1, 7))
 def test_teaser_cases_inliers(case):
     """Umeyama on the rows that the case's ground truth says are inliers recovers R, t, s."""
@@ -77,6 +78,7 @@ def test_teaser_cases_inliers(case):
     assert np.linalg.norm(T_e[:3, 3] - t) < (0.02 if case == 6 else 1e-9), T_e[:3, 3] - t
 
 
+@pytest.mark.real
 def test_kabsch_shared_equals_batch(rng):
     P, Q = rng.normal(size=(50, 3)), rng.normal(size=(50, 3))
     W = rng.random((4, 50))

@@ -25,6 +25,7 @@ def test_bop_camera_json_depth_scale_in_mm(tmp_path):
     assert Camera.from_json(p).depth_scale == pytest.approx(0.1)  # 0.1 mm per unit
 
 
+@pytest.mark.real
 def test_bop_scene_camera_and_open3d_layouts():
     cam = Camera.from_json(shared("ycbv_frame") / "test/000001/scene_camera.json", width=640, height=480)
     assert cam.fx == pytest.approx(1066.778) and cam.depth_scale == pytest.approx(0.1)

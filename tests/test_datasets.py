@@ -103,6 +103,7 @@ def test_folder_and_cloud_readers(tmp_path, sequence):
     assert len(crec.frame(crec.images[0]).points()[0]) > 1000
 
 
+@pytest.mark.real
 def test_redwood_layout_of_the_open3d_sample(tmp_path):
     """The Open3D sample: 5 frames with colour and the PrimeSense intrinsics; the camera poses are
     trajectory.log's matrices, and they are T_world_cam: frame 4's points moved by inv(P0) P4 land on frame 0's
@@ -154,6 +155,7 @@ def test_folder_recording_with_a_bop_camera_entry(tmp_path, sequence):
     assert np.abs(g.depth - f.depth).max() < 1e-6
 
 
+@pytest.mark.real
 def test_sevenscenes_layout_reads_depth_in_mm_and_camera_to_world_poses():
     """The 7-Scenes clip: auto-detected, 300 frames, Kinect intrinsics from camera-intrinsics.txt, depth in metres
     (a Kinect sees this room at 0.5-4 m), and the .pose.txt matrices are T_world_cam: frame 40's points moved by
@@ -179,6 +181,7 @@ def test_sevenscenes_layout_reads_depth_in_mm_and_camera_to_world_poses():
     assert np.median(moved) < 0.012 and np.median(unmoved) > 0.04
 
 
+@pytest.mark.real
 def test_sevenscenes_scene_folder_reads_each_sequence_as_a_scene(tmp_path):
     """A scene folder as 7-Scenes ships it (``chess/seq-01``, ``chess/seq-02``, the intrinsics beside them): each
     ``seq-NN`` is scene NN, its frames numbered from 0 in file-number order and read from its own folder, with its
@@ -241,6 +244,7 @@ def test_sevenscenes_colour_as_jpg_or_as_3dmatch_png(tmp_path):
     assert f2.rgb is not None and f2.rgb[5, 5, 1] > 150  # the JPG's green, not the PNG's grey
 
 
+@pytest.mark.real
 def test_bop_depth_and_grey_as_tiff(tmp_path):
     """A BOP split whose images are 16-bit TIFFs (ITODD ships ``depth/*.tif`` and ``gray/*.tif``): the YCB-V frame
     with its depth PNG rewritten as a TIFF and its colour as a grey TIFF reads the same depth, in metres."""

@@ -86,6 +86,7 @@ def test_empty_and_all_nan_clouds(tmp_path):
         Frame.from_cloud(tmp_path / "n.xyz")
 
 
+@pytest.mark.real
 def test_organized_pcl_scene_recovers_kinect_intrinsics():
     """PCL's Kinect scene is organized and stored y-up/z-back; its pinhole is fitted to 0.01 px."""
     f = Frame.from_cloud(shared("pcl_milk") / "scene.pcd")

@@ -80,6 +80,7 @@ def test_clouds_xyz_with_normals_and_nan_rows(tmp_path):
         read_cloud(tmp_path / "c.obj")
 
 
+@pytest.mark.real
 def test_organized_pcd_keeps_its_layout():
     """PCL's scene.pcd: 640 x 480, NaN where the Kinect saw nothing; kept as a grid unless invalid points are
     dropped."""
@@ -134,6 +135,7 @@ def test_an_ascii_ply_with_nan_and_inf_rows_reads_its_finite_points(tmp_path):
         read_cloud(tmp_path / "word.ply")
 
 
+@pytest.mark.real
 def test_every_stanford_range_scan_reads():
     """The Cyberware PLYs (obj_info lines, a range_grid element) that open3d's reader refuses: all 15 read, with
     the vertex count their headers declare and coordinates of a 20 cm dragon in metres."""

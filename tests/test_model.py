@@ -27,6 +27,7 @@ def test_shipped_models_are_bop_folder(library):
         assert ((m.points - m.points.mean(0)) * m.normals).sum(1).mean() > 0
 
 
+@pytest.mark.real
 def test_point_cloud_models_bop_mm():
     lib = ModelLibrary.from_folder(shared("ycbv_frame") / "models")
     assert [m.obj_id for m in lib] == [8, 14, 21]

@@ -227,6 +227,7 @@ def test_a_corrupt_frame_is_skipped_and_tracking_goes_on(recording, library, tmp
         assert max(np.linalg.norm(T[:3, 3] - pos[f]) for f, T in zip(t.frames, t.poses)) < 0.005
 
 
+@pytest.mark.real
 def test_the_tracker_relocalises_a_camera_beyond_its_icp_reach(library):
     """Every 20th frame of the real 7-Scenes clip (15 frames, steps of up to 20 cm and 14 degrees; none of the
     library's objects is there, so the camera is the odometry's alone): the tracker's frame-to-frame ICP loses the
@@ -307,6 +308,7 @@ def test_a_track_reports_the_running_mean_of_its_views_since_its_map_pose_was_se
     assert tr.fused == 1 and np.array_equal(tr.T_world_fused, tr.T_world_model)
 
 
+@pytest.mark.real
 def test_where_tracking_loses_the_camera_the_same_frame_is_detected_and_the_objects_relocalise_it():
     """The last 10 of the 40 real LINEMOD cat frames, each 30 frames of the sequence after the one before (the
     camera moves 30-106 cm and turns 18-98 degrees between them), tracked with the cat's own model: the tracker's
