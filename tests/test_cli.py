@@ -13,6 +13,7 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from pcdet.cli import app
+from pcdet.datasets.bop import BopDataset
 
 from .conftest import MODELS, shared
 
@@ -41,13 +42,27 @@ def scene(synth_small, tmp_path):
     return tmp_path
 
 
-def test_detect_writes_json_and_overlay(scene):
+def test_detect_writes_json_and_overlay(scene, synth_small, library):
+    """The first image of ``synth_small`` (3 objects in view, none given): the JSON holds the documented keys and
+    poses in the camera frame that lie on the ground truth. At least 2 of the 3 objects within ADD-S 0.1 d, and
+    every detection on an object of the image: the regression suite finds 0.98 of such instances at precision
+    0.98 (docs/measurements.md), so one miss in an image is already rare."""
+    from pcdet.metrics import adds
+
     res = _cli("detect", "--models", MODELS, "--depth", scene / "depth.png", "--camera", scene / "cam.json",
                "--out", scene / "det.json", "--overlay", scene / "o.png")
     assert res.exit_code == 0, res.output
     doc = json.loads((scene / "det.json").read_text())
     assert set(doc) == {"pcdet_version", "frame", "pipeline", "timing_s", "detections"}
-    assert len(doc["detections"]) >= 2
+    ds = BopDataset(synth_small)
+    gts = ds.gt(ds.images[0])
+
+    def on_truth(d):
+        m = library.by_id(d["obj_id"])
+        return any(g["obj_id"] == d["obj_id"] and adds(np.array(d["T_cam_model"]), g["T_cam_model"], m.points)
+                   < 0.1 * m.diameter for g in gts)
+
+    assert sum(map(on_truth, doc["detections"])) >= 2 and all(map(on_truth, doc["detections"])), doc["detections"]
     d = doc["detections"][0]
     assert set(d) == {"model", "obj_id", "score", "T_cam_model", "n_inliers", "group_size", "fitness", "rmse_m",
                       "visible_fraction"}
@@ -174,6 +189,7 @@ def test_eval_prints_and_writes_json(synth_small, tmp_path):
     assert "ADD-S" in res.output
 
 
+@pytest.mark.real
 def test_run_and_eval_on_a_bop_target_list(synth_small, tmp_path):
     """--targets FILE (BOP'19 test_targets form): only the listed image is detected, for the listed objects and
     counts; run.json names the list and its digest, so --resume with another list is refused; eval scores the
@@ -228,14 +244,23 @@ def test_threshold_selection_end_to_end(synth_small, tmp_path):
 
 
 def test_demo_runs_and_scores(tmp_path):
-    """pcdet demo: renders 2 scenes, detects, evaluates, and draws an overlay of the first image."""
+    """pcdet demo: renders 2 scenes, detects, evaluates, and draws an overlay of the first image. The scores it
+    prints are those of `pcdet eval` on its own dataset and results, and they are good: ADD-S recall at least 0.75
+    (the regression suite finds 0.98 of such instances; 0.75 allows one miss in each of the 2 scenes of 4)."""
     res = _cli("demo", "--out", tmp_path / "demo", "--scenes", "2")
     assert res.exit_code == 0, res.output
-    assert (tmp_path / "demo" / "run" / "results.csv").is_file()
     assert np.asarray(Image.open(tmp_path / "demo" / "overlay.png")).shape == (480, 640, 3)
     assert "ADD-S" in res.output and "median" in res.output
+    ev = _cli("eval", tmp_path / "demo" / "dataset", tmp_path / "demo" / "run" / "results.csv", "--json",
+              tmp_path / "e.json")
+    assert ev.exit_code == 0, ev.output
+    overall = json.loads((tmp_path / "e.json").read_text())["overall"]
+    assert overall["instances"] == 8 and overall["recall_adds"] >= 0.75, overall
+    shown = next(ln for ln in res.output.splitlines() if " all " in ln).replace("│", " ").split()
+    assert f"{overall['recall_adds']:.3f}" in shown and f"{overall['ar']:.3f}" in shown, shown
 
 
+@pytest.mark.real
 def test_register_bunny_cli(tmp_path):
     """The JSON holds T_target_source: it moves the bunny mesh onto scan bun000 within 5 mm (bun.conf's pose)."""
     from scipy.spatial.transform import Rotation

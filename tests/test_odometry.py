@@ -95,6 +95,7 @@ def test_tum_trajectory_round_trip_and_bad_lines(tmp_path):
     assert "bad.txt: line 2" in str(e.value)
 
 
+@pytest.mark.real
 def test_odometry_command_on_real_kinect_frames(tmp_path):
     """``pcdet odometry`` on every second frame of the first 80 of the 7-Scenes clip (a copy, with one frame
     truncated): one TUM line per readable frame in frame order, the first the identity, the bad frame reported
@@ -151,17 +152,19 @@ def test_odometry_command_on_real_kinect_frames(tmp_path):
     assert read_tum(tmp_path / "odo2" / "trajectory.txt")[0] == stamps
 
 
-def _sevenscenes_ate(first: int, stop: int) -> float:
-    """ATE (m) of the default odometry over the real 7-Scenes frames [first, stop), run from frame ``first``."""
+def _sevenscenes_ate(first: int, stop: int, cfg: OdometryConfig | None = None) -> float:
+    """ATE (m) of the odometry (default: the default settings) over the real 7-Scenes frames [first, stop), run
+    from frame ``first``."""
     from .conftest import shared
 
     rec = open_recording(shared("sevenscenes"))
     refs = list(rec)[first:stop]
     truth = rec.camera_poses()
     gt = [np.linalg.inv(truth[refs[0]]) @ truth[r] for r in refs]
-    return ate_rmse(list(odometry((rec.frame(r) for r in refs), OdometryConfig())), gt)
+    return ate_rmse(list(odometry((rec.frame(r) for r in refs), cfg or OdometryConfig())), gt)
 
 
+@pytest.mark.real
 def test_odometry_command_on_a_scene_folder_of_sequences(tmp_path):
     """A 7-Scenes scene folder with two sequences (20 real frames each, from two parts of the clip): one TUM
     trajectory per sequence, each starting at the identity and registered on its own frames (the same poses as
@@ -197,21 +200,27 @@ def test_odometry_command_on_a_scene_folder_of_sequences(tmp_path):
     assert [(int(a), int(b)) for a, b in rows] == [(1, 20), (2, 20)]
 
 
+@pytest.mark.real
 def test_depth_noise_weights_on_real_kinect_frames():
-    """The first 122 real 7-Scenes frames (up to the ground truth's 36 mm jump between frames 121 and 122): the
-    default, each point weighted by the inverse of a structured-light sensor's depth noise variance, stays under
-    15 mm ATE (measured 12.3 mm); with every point weighted alike it drifts to 15.6 mm. The bar is below the
-    unweighted result, so the test fails if the weights stop taking effect."""
-    assert _sevenscenes_ate(0, 122) < 0.015
+    """The first 122 real 7-Scenes frames (up to the ground truth's 36 mm jump between frames 121 and 122): each
+    point weighted by the inverse of a structured-light sensor's depth noise variance (the default) drifts at least
+    1 mm less than every point weighted alike, on the same frames (12.3 against 15.6 mm measured); the absolute bar,
+    25 mm, only catches an odometry that lost the camera."""
+    weighted, alike = _sevenscenes_ate(0, 122), _sevenscenes_ate(0, 122, OdometryConfig(depth_weight_power=0.0))
+    assert weighted < alike - 0.001 and weighted < 0.025, (weighted, alike)
 
 
+@pytest.mark.real
+@pytest.mark.slow
 def test_a_tukey_kernel_one_map_cell_wide_on_real_kinect_frames():
-    """The 300 real 7-Scenes frames: with ICP's Tukey kernel one map grid spacing wide (the default) the ATE stays
-    under 22 mm (measured 20.9 mm); with the former two spacings it is 23.3 mm: the narrower kernel lets fewer stray
-    pairs (far points, surfaces seen from a new side) pull the pose. The bar lies between the two, so the test
-    fails if the kernel stops taking effect. (Frames 150-299 alone told them apart before the map's cells were
-    fused, 9.6 against 13.9 mm; now 10.1 against 10.8.)"""
-    assert _sevenscenes_ate(0, 300) < 0.022
+    """The 300 real 7-Scenes frames: with ICP's Tukey kernel one map grid spacing wide (the default) the ATE is at
+    least 1 mm below that of the former two spacings, on the same frames (19.5 against 21.8 mm measured): the
+    narrower kernel lets fewer stray pairs (far points, surfaces seen from a new side) pull the pose. The absolute
+    bar, 25 mm, only catches an odometry that lost the camera somewhere: a millimetre or two of ATE on this clip
+    decides nothing by itself (docs/measurements.md: its ground truth is less consistent with the images than good
+    odometry), while the comparison on the same frames does."""
+    one, two = _sevenscenes_ate(0, 300), _sevenscenes_ate(0, 300, OdometryConfig(icp_kernel=2.0))
+    assert one < two - 0.001 and one < 0.025, (one, two)
 
 
 def test_odometry_refuses_a_kernel_that_is_not_positive():
@@ -222,6 +231,7 @@ def test_odometry_refuses_a_kernel_that_is_not_positive():
             OdometryConfig(icp_kernel=bad)
 
 
+@pytest.mark.real
 @pytest.mark.parametrize("stride", [1, 3, 4])
 def test_odometry_points_are_the_strided_valid_pixels_in_range(stride):
     """Odometry back-projects only every ``pixel_stride``-th row and column: the points are exactly those of the
@@ -281,6 +291,7 @@ def _sevenscenes_every(n: int, cfg: OdometryConfig, relocalise=None, backwards: 
     return ate_rmse([odo.step(rec.frame(r)) for r in refs], gt), odo.recovered
 
 
+@pytest.mark.real
 def test_odometry_recovers_a_fast_camera_by_coarse_to_fine_icp():
     """Every 12th real 7-Scenes frame (25 frames, steps of up to 14 cm and 8 degrees): ICP from the
     constant-velocity guess alone loses the camera (ATE over 0.1 m; 0.80 m measured), and a frame that then fits
@@ -291,6 +302,7 @@ def test_odometry_recovers_a_fast_camera_by_coarse_to_fine_icp():
     assert recovered >= 1 and kept < 0.025
 
 
+@pytest.mark.real
 def test_odometry_relocalises_a_camera_beyond_icp_reach_globally(tmp_path):
     """Every 20th real 7-Scenes frame (15 frames, steps of up to 20 cm and 14 degrees): coarse-to-fine ICP alone
     loses the camera (ATE over 0.1 m; 0.30 m measured); `pcdet odometry`, which relocalises such a frame by global
@@ -326,6 +338,7 @@ def test_odometry_relocalises_a_camera_beyond_icp_reach_globally(tmp_path):
     assert ate_rmse(poses, gt) < 0.025
 
 
+@pytest.mark.real
 def test_a_camera_back_where_it_has_been_registers_against_its_first_views():
     """Every 4th real 7-Scenes frame there and back (75 frames out, 74 back): on the way back the camera passes
     where keyframes were made, so it makes none (17 on the way out, measured, and none back) and the map still holds
@@ -349,6 +362,7 @@ def test_a_camera_back_where_it_has_been_registers_against_its_first_views():
     assert ate_rmse(poses, [np.linalg.inv(truth[refs[0]]) @ truth[r] for r in refs]) < 0.022
 
 
+@pytest.mark.real
 @pytest.mark.parametrize("n", [20, 25])
 def test_a_relocalised_camera_is_not_turned_around(n):
     """The real 7-Scenes clip backwards at every 20th and 25th frame (steps of up to 19 cm and 14 degrees): around
@@ -362,6 +376,7 @@ def test_a_relocalised_camera_is_not_turned_around(n):
     assert recovered >= 1 and ate < 0.04
 
 
+@pytest.mark.real
 def test_a_camera_turning_towards_unseen_ground_is_not_taken_for_lost(monkeypatch):
     """The real 7-Scenes frames 200 down to 101, played backwards: the camera turns towards ground the map has not
     seen, and between keyframes the share of a frame's samples on the map's surface falls under 0.8 (0.66
@@ -401,6 +416,7 @@ def test_odometry_refuses_a_recovery_threshold_outside_zero_to_one():
             OdometryConfig(recover_below=bad)
 
 
+@pytest.mark.real
 def test_odometry_command_reads_its_settings_back_from_a_toml_file(tmp_path):
     """`pcdet odometry --config FILE`: a run's own odometry.toml given back gives the same trajectory, bit for bit;
     a file that changes a setting (plain frame-to-frame ICP) gives another; `--method` overrides the file's; an
@@ -448,6 +464,7 @@ def test_odometry_command_reads_its_settings_back_from_a_toml_file(tmp_path):
     assert res.exit_code != 0 and "missing.toml" in res.output and "not found" in res.output
 
 
+@pytest.mark.real
 def test_odometry_reports_a_frame_that_meets_a_bug_and_goes_on(tmp_path, monkeypatch):
     """An unexpected exception in one frame's odometry step (made to raise here) is reported as an internal error
     naming the place in pcdet, and the other frames keep their poses: odometry predicts across the gap."""

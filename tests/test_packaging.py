@@ -40,9 +40,17 @@ def test_wheel_installs_and_runs_from_anywhere(tmp_path):
                  cwd=elsewhere).stdout.split()
     assert all(w.startswith(str(env_dir)) for w in where), where
     pcdet = env_dir / "bin" / "pcdet"
+    # the installed package computes what the checkout computes, byte for byte (same code, data and seed)
     _run([pcdet, "demo", "--out", "demo", "--scenes", "1"], cwd=elsewhere)
-    assert (elsewhere / "demo" / "overlay.png").is_file() and (elsewhere / "demo" / "run" / "results.csv").is_file()
+    _run([sys.executable, "-m", "pcdet.cli", "demo", "--out", tmp_path / "here", "--scenes", "1"], cwd=ROOT)
+    assert (elsewhere / "demo" / "overlay.png").read_bytes() == (tmp_path / "here" / "overlay.png").read_bytes()
+    results = (elsewhere / "demo" / "run" / "results.csv").read_bytes()
+    assert results == (tmp_path / "here" / "run" / "results.csv").read_bytes() and results.count(b"\n") >= 3
     scene = elsewhere / "demo" / "dataset" / "test" / "000001"
-    _run([pcdet, "detect", "--pipeline", "hough", "--depth", scene / "depth" / "000000.png", "--camera",
-          scene / "scene_camera.json", "--out", "det.json"], cwd=elsewhere)
-    assert json.loads((elsewhere / "det.json").read_text())["pipeline"]["grouping"]["method"] == "hough"
+    args = ["detect", "--pipeline", "hough", "--depth", scene / "depth" / "000000.png", "--camera",
+            scene / "scene_camera.json", "--out"]
+    _run([pcdet, *args, "det.json"], cwd=elsewhere)
+    _run([sys.executable, "-m", "pcdet.cli", *args, tmp_path / "det_here.json"], cwd=ROOT)
+    wheel_doc, here_doc = (json.loads(p.read_text()) for p in (elsewhere / "det.json", tmp_path / "det_here.json"))
+    assert wheel_doc["pipeline"]["grouping"]["method"] == "hough" and wheel_doc["detections"]
+    assert wheel_doc["detections"] == here_doc["detections"]

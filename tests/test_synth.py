@@ -116,7 +116,7 @@ def test_synth_scenes_do_not_depend_on_the_sensor_model(tmp_path, library):
     for sensor in ("structured_light", "structured_light_band", "independent"):
         out = synthesize(library, tmp_path / sensor, SynthConfig(scenes=2, objects=2, seed=3, sensor=sensor))
         gts.append([json.loads((p / "scene_gt.json").read_text()) for p in sorted((out / "test").iterdir())])
-    assert gts[0] == gts[1]
+    assert gts[0] == gts[1] == gts[2]
 
 
 def test_ground_truth_matches_depth(synth_small, library):
