@@ -1,6 +1,7 @@
 """pcdet.blas: BLAS limited to one thread while pcdet works, and restored afterwards."""
 from __future__ import annotations
 
+import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from pcdet.blas import one_blas_thread
@@ -29,6 +30,7 @@ def test_one_blas_thread_limits_within_and_restores_after():
         assert set(_blas_threads()) == {3}
 
 
+@pytest.mark.slow
 def test_detection_runs_with_one_blas_thread_and_gives_the_limit_back(monkeypatch, library, synth_small):
     """Detector.detect does its work under the limit (seen from inside its grouping stage) and returns BLAS to
     the threads it had."""

@@ -141,6 +141,7 @@ def test_run_skips_a_corrupt_image_and_writes_the_rest(synth_small, tmp_path):
     assert rows[0] == "scene_id,im_id,obj_id,score,R,t,time" and len(rows) > 2
 
 
+@pytest.mark.slow
 def test_run_is_byte_identical_across_runs_workers_and_threads(synth_small, tmp_path):
     """The same results.csv from one process with one detector thread (numpy's threads at 1), one process with
     three detector threads (numpy's at 2), and two worker processes (one detector thread each)."""
@@ -156,6 +157,7 @@ def test_run_is_byte_identical_across_runs_workers_and_threads(synth_small, tmp_
     assert outs[0] == outs[1] == outs[2] and outs[0].count(b"\n") > 3
 
 
+@pytest.mark.slow
 def test_eval_prints_and_writes_json(synth_small, tmp_path):
     """results.csv rows are the frame JSON's poses in BOP units (R row-major, t in mm), and eval scores them:
     with the objects given, at least 7 of the 9 instances within ADD 0.1 d (measured: 8)."""
@@ -218,6 +220,7 @@ def test_run_and_eval_on_a_bop_target_list(synth_small, tmp_path):
                                                          "--targets", "bop19"))
 
 
+@pytest.mark.slow
 def test_run_times_fills_the_time_column(synth_small, tmp_path):
     """--times writes each frame's measured seconds (the sum of its stage times) into every row of that frame."""
     assert _cli("run", synth_small, "--out", tmp_path / "r", "--times").exit_code == 0
@@ -230,6 +233,7 @@ def test_run_times_fills_the_time_column(synth_small, tmp_path):
         assert float(row["time"]) > 0
 
 
+@pytest.mark.slow
 def test_threshold_selection_end_to_end(synth_small, tmp_path):
     """verify.selection = "threshold" (per-detection thresholds, greedy pixel conflicts) runs through the CLI,
     is written into the resolved config, and finds most objects (at least 7 of 9 without targets)."""
@@ -243,6 +247,7 @@ def test_threshold_selection_end_to_end(synth_small, tmp_path):
     assert ev["recall_adds"] >= 7 / 9 and ev["precision_adds"] >= 0.75, ev
 
 
+@pytest.mark.slow
 def test_demo_runs_and_scores(tmp_path):
     """pcdet demo: renders 2 scenes, detects, evaluates, and draws an overlay of the first image. The scores it
     prints are those of `pcdet eval` on its own dataset and results, and they are good: ADD-S recall at least 0.75

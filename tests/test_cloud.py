@@ -121,6 +121,7 @@ def _noisy_surfaces(rng, n=6000):
     return np.r_[patch, sphere]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not __import__("pcdet.grid", fromlist=["compiled"]).compiled(), reason="kernel not built")
 def test_compiled_normals_are_open3ds_up_to_rounding(rng):
     """On 6000 noisy surface points (radius 12 mm: 5-60 neighbours, so the cap of 30 applies to many), the compiled

@@ -22,6 +22,7 @@ def sequence(tmp_path_factory, library):
     return synthesize(library, out, SynthConfig(scenes=1, objects=3, sequence=6, seed=4))
 
 
+@pytest.mark.slow
 def test_bop_sequence_has_smooth_camera_poses_and_consistent_ground_truth(sequence):
     rec = open_recording(sequence)
     assert rec.format == "bop" and isinstance(rec, Recording) and len(rec) == 6

@@ -152,6 +152,7 @@ def test_empty_scene_gives_no_detection(library):
     assert res.detections == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("targets", [None, {1: 1}])
 def test_a_frame_of_pure_depth_noise_gives_no_detection(library, targets):
     """Depth drawn uniformly from 1.0-1.3 m in every pixel (no surface, as a sensor facing glare or fog might
@@ -253,6 +254,7 @@ def test_a_large_model_groups_the_same_keypoints_alone_or_beside_smaller_ones(sy
         np.testing.assert_array_equal(without.descriptors[x.index], beside.descriptors[y.index])
 
 
+@pytest.mark.slow
 def test_with_targets_an_object_keeps_its_spot_from_a_better_scoring_pose_of_another(tmp_path, library):
     """Scene 5 of the seed-2026 suite (synth's default scenes), objects given: the step block's true pose (ADD under
     0.01 d) scores below a bracket laid onto it, and the walk by score alone lets the bracket take its pixels, so no
@@ -308,6 +310,7 @@ def _six_part_scene(tmp_path, library, scene: int, obj_id: int = 5):
         lambda T: adds(T, T_gt, obj.points) < 0.1 * obj.diameter
 
 
+@pytest.mark.slow
 def test_with_targets_a_model_is_refined_at_other_places_than_where_it_looks_best(tmp_path, library):
     """Scene 5 of the six-part suite (``_six_part_scene``), objects given: at first look the step block's raw poses
     on other objects' faces all look better than its own, so its three full ICPs went to one wrong place and it was
@@ -327,6 +330,7 @@ def test_with_targets_a_model_is_refined_at_other_places_than_where_it_looks_bes
     assert refined and not any(near(r.T_target_source) for r in refined)
 
 
+@pytest.mark.slow
 def test_with_targets_the_coarse_icps_reach_more_places_too(tmp_path, library):
     """Scene 5 of the six-part suite, objects given, the bracket (obj 1): its best-looking raw poses lie on other
     objects and distractors (the first three look 0.98-0.99, about 2 d from the truth), and its raw poses within
@@ -437,6 +441,7 @@ def test_with_targets_the_redone_walk_takes_each_object_only_up_to_its_count(lib
     assert kept({6: 1, 5: 1, 1: 1}) == [1, 2, 3]
 
 
+@pytest.mark.slow
 def test_with_targets_an_object_left_short_is_refined_at_more_places(tmp_path, library):
     """Scene 3 of the crowded suite (``pcdet synth --objects 3 --instances 3 --distractors 3 --seed 2026``),
     objects given. One of the step blocks given is left without a pose after selection: the full ICPs of the step

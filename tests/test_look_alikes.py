@@ -90,6 +90,7 @@ def _with_copies(tmp_path, scales=(0.92, 1.08)):
     return folder
 
 
+@pytest.mark.slow
 def test_a_family_is_grouped_once_and_each_size_verified_on_its_own(tmp_path, synth_small, library):
     """With two scaled copies of the bracket in the library, grouping runs for the six parts only (eight with
     ``grouping.look_alike = 0``), and so do the coarse ICPs: the same models from the same poses as with the six

@@ -88,6 +88,7 @@ def test_frames_are_the_same_on_any_thread_count(rng, kernel):
     assert v1.sum() > 0.9 * len(kp)
 
 
+@pytest.mark.slow
 def test_compiled_frames_are_numpys_frames(library):
     """A sensor's view of each shipped model with 1 mm noise, every point a keypoint: the compiled kernel (Jacobi's
     method on a grid's neighbours) and numpy (a KD-tree's neighbours, LAPACK's eigh) find the same valid frames, and

@@ -58,6 +58,7 @@ def recording(tmp_path_factory, library):
                                      SynthConfig(scenes=1, objects=4, sequence=12, sweep_deg=20.0, seed=5)))
 
 
+@pytest.mark.slow
 def test_default_odometry_on_a_synthetic_recording(recording):
     """12 frames sweeping 20 deg around a table-top scene: the default (ICP against the keyframe map) keeps the
     relative error under 5 mm and 0.5 deg per frame and the absolute error under 2 cm, far below the no-motion

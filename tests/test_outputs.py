@@ -71,6 +71,7 @@ def test_check_helpers_create_missing_folders_and_refuse_unwritable_ones(tmp_pat
         check_folder("/proc/pcdet-cannot-be-here")
 
 
+@pytest.mark.slow
 def test_outputs_have_the_usual_permissions(synth_small, tmp_path):
     """Under umask 022 every file pcdet writes is 0644 (the temporary file of an atomic write is 0600)."""
     out = tmp_path / "r"
@@ -83,6 +84,7 @@ def test_outputs_have_the_usual_permissions(synth_small, tmp_path):
     assert {oct(stat.S_IMODE(f.stat().st_mode)) for f in files} == {"0o644"}
 
 
+@pytest.mark.slow
 def test_runs_do_not_mix(synth_small, tmp_path):
     """A second run into a folder that holds a run is refused unless --resume (same recording and pipeline
     only) or --overwrite (which removes the old frames first)."""
@@ -102,6 +104,7 @@ def test_runs_do_not_mix(synth_small, tmp_path):
     assert "give one of them" in _error(_cli("run", synth_small, "--out", out, "--resume", "--overwrite"))
 
 
+@pytest.mark.slow
 def test_a_folder_in_use_is_refused(synth_small, tmp_path):
     out = tmp_path / "r"
     with FolderLock(out):
@@ -118,6 +121,7 @@ def test_synth_into_a_folder_with_scenes_needs_overwrite(library, tmp_path):
     assert sorted(p.name for p in (out / "test").iterdir()) == ["000001"]
 
 
+@pytest.mark.slow
 def test_worker_processes_write_each_frame_as_it_is_done(library, tmp_path):
     """`pcdet run --workers 2` killed once its first frames are written keeps them; --resume finishes."""
     from pcdet.synth import SynthConfig, synthesize
@@ -147,6 +151,7 @@ def test_pipeline_values_of_the_wrong_type_name_file_field_and_type(synth_small,
     assert "preprocess.remove_plane = 'no': expected a boolean" in _error(_cli("config", "dump", "--pipeline", p))
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed")
 @pytest.mark.xdist_group("ray")  # one local Ray instance at a time
 def test_a_local_ray_instance_listens_on_loopback_only():

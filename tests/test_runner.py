@@ -38,6 +38,7 @@ def uninterrupted(recording, library, tmp_path_factory):
     return (out / "results.csv").read_bytes()
 
 
+@pytest.mark.slow
 def test_killed_run_resumed_gives_the_same_results(recording, uninterrupted, tmp_path):
     """`pcdet run` is killed (SIGKILL) after its second frame is written; `--resume` finishes the job."""
     out = tmp_path / "out"
@@ -52,6 +53,7 @@ def test_killed_run_resumed_gives_the_same_results(recording, uninterrupted, tmp
     assert (out / "results.csv").read_bytes() == uninterrupted
 
 
+@pytest.mark.slow
 def test_two_worker_processes_give_the_same_results(recording, uninterrupted, library, tmp_path):
     from pcdet.config import PipelineConfig
 
@@ -60,6 +62,7 @@ def test_two_worker_processes_give_the_same_results(recording, uninterrupted, li
     assert (tmp_path / "results.csv").read_bytes() == uninterrupted
 
 
+@pytest.mark.slow
 def test_corrupt_frame_in_a_plain_folder_recording_is_skipped(recording, library, tmp_path):
     """The recording as depth/ + camera.json with frame 3's PNG truncated: 5 frames written, 1 failure that
     names the file, and the CLI exits 0 with the frame reported."""
@@ -82,6 +85,7 @@ def test_corrupt_frame_in_a_plain_folder_recording_is_skipped(recording, library
     assert len(failures) == 1 and "003.png" in failures[0]["error"]
 
 
+@pytest.mark.slow
 @requires_ray
 @one_ray
 def test_ray_executor_gives_the_same_results(recording, uninterrupted, library, tmp_path):
@@ -94,6 +98,7 @@ def test_ray_executor_gives_the_same_results(recording, uninterrupted, library, 
     assert (tmp_path / "results.csv").read_bytes() == uninterrupted
 
 
+@pytest.mark.slow
 @requires_ray
 @one_ray
 def test_tracking_scenes_spread_over_processes_and_ray_match_one_process(library, tmp_path):
@@ -112,6 +117,7 @@ def test_tracking_scenes_spread_over_processes_and_ray_match_one_process(library
     assert all(len(r.tracks) >= 1 for r in runs[0].values())
 
 
+@pytest.mark.slow
 def test_a_frame_that_meets_a_bug_is_reported_and_the_run_goes_on(recording, library, tmp_path, monkeypatch):
     """An unexpected exception while detecting in one frame (here a stage made to raise IndexError on the third
     frame, as ICP of an empty batch of poses once did) is not bad input, but the batch still goes on: the other

@@ -172,6 +172,7 @@ def test_distractors_are_rendered_without_ground_truth(tmp_path, library):
     assert unexplained(SynthConfig(scenes=1, objects=2, seed=5, noise=False, mesh_error=0), "b") == 0
 
 
+@pytest.mark.slow
 def test_synth_lays_flat_models_on_their_face(tmp_path):
     """Models with no volume, which trimesh's stable-pose analysis cannot take (a one-triangle model made qhull
     raise; a zero-thickness square made it loop for ever), lie on the table on their face: `pcdet synth` finishes

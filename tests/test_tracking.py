@@ -34,6 +34,7 @@ def _truth(rec):
     return out
 
 
+@pytest.mark.slow
 def test_objects_stay_within_5mm_of_the_truth_in_every_frame(recording, library):
     rec = open_recording(recording)
     res = Tracker(Detector(library), TrackingConfig(redetect_every=10)).run(rec)
@@ -53,6 +54,7 @@ def test_objects_stay_within_5mm_of_the_truth_in_every_frame(recording, library)
         assert t.fused >= 2
 
 
+@pytest.mark.slow
 def test_a_wrong_map_pose_is_replaced_by_the_next_better_detection(recording, library):
     """A track whose map pose is wrong (the first detection of a part turned the wrong way round, as happens with
     near-symmetric parts): here, after the first frame, one object's map pose is turned 180 degrees about the
@@ -66,6 +68,7 @@ def test_a_wrong_map_pose_is_replaced_by_the_next_better_detection(recording, li
     assert len(late) >= 8 and max(late) < 0.005, (tr.model, late)
 
 
+@pytest.mark.slow
 def test_a_new_map_pose_is_confirmed_by_a_detection_on_the_next_frame(recording, library):
     """With ``confirm`` (the default) the frame after a map pose was set runs a full detection, which replaces a
     wrong first map pose at once: the flipped map pose of the test above is replaced in frame 1, and the object
@@ -78,6 +81,7 @@ def test_a_new_map_pose_is_confirmed_by_a_detection_on_the_next_frame(recording,
     assert tr.modes[1:4] == ["detect", "detect", "track"]
 
 
+@pytest.mark.slow
 def test_a_confirming_detection_due_survives_a_checkpoint(recording, library):
     """A tracker restored from its state after the first frame runs the confirming detection on the next frame,
     as the uninterrupted tracker does, with the same result."""
@@ -122,6 +126,7 @@ def tracked(recording, tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_cli_track_writes_tracks_json(tracked):
     doc = json.loads((tracked / "tracks.json").read_text())
     (scene,) = doc["scenes"]
@@ -131,6 +136,7 @@ def test_cli_track_writes_tracks_json(tracked):
     assert {"id", "model", "obj_id", "T_world_model", "observations"} <= set(scene["tracks"][0])
 
 
+@pytest.mark.slow
 def test_tracking_writes_frames_and_a_results_csv_that_eval_scores(recording, tracked):
     """--track writes what detection writes: one frame JSON per frame (mode detect or track) and results.csv
     with camera-frame poses; pcdet eval scores it (measured: recall ADD-S 1.00 over the 60 instances, precision
@@ -152,6 +158,7 @@ def test_tracking_writes_frames_and_a_results_csv_that_eval_scores(recording, tr
     assert ev["instances"] == 60 and ev["recall_adds"] >= 0.9 and ev["precision_adds"] >= 0.9, ev
 
 
+@pytest.mark.slow
 def test_killed_tracking_run_resumed_gives_the_same_results(recording, tracked, tmp_path):
     """`pcdet run --track` is killed (SIGKILL) after some frames are written; --resume continues from the last
     checkpoint (odometry, map, tracks) and writes a byte-identical results.csv."""
@@ -171,6 +178,7 @@ def test_killed_tracking_run_resumed_gives_the_same_results(recording, tracked, 
     assert a["scenes"][0]["camera_poses"] == b["scenes"][0]["camera_poses"]
 
 
+@pytest.mark.slow
 def test_a_checkpoint_is_plain_data_and_another_version_is_refused_in_one_line(recording, tracked, tmp_path):
     """The tracking checkpoint names no Python class (numpy reads every entry without pickle), so moving or renaming
     one leaves it readable; a checkpoint of another version, or an earlier pcdet's pickled one, stops --resume with
@@ -210,6 +218,7 @@ def test_a_checkpoint_is_plain_data_and_another_version_is_refused_in_one_line(r
         assert lines[-1].startswith(f"error: {named}: {words}"), r.stderr
 
 
+@pytest.mark.slow
 def test_a_corrupt_frame_is_skipped_and_tracking_goes_on(recording, library, tmp_path):
     import shutil
 
