@@ -254,29 +254,38 @@ def test_a_large_model_groups_the_same_keypoints_alone_or_beside_smaller_ones(sy
         np.testing.assert_array_equal(without.descriptors[x.index], beside.descriptors[y.index])
 
 
-@pytest.mark.slow
-def test_with_targets_an_object_keeps_its_spot_from_a_better_scoring_pose_of_another(tmp_path, library):
-    """Scene 5 of the seed-2026 suite (synth's default scenes), objects given: the step block's true pose (ADD under
-    0.01 d) scores below a bracket laid onto it, and the walk by score alone lets the bracket take its pixels, so no
-    step block is kept. Global selection prefers the step block there (it explains the spot), and the step block is
-    found within ADD 0.1 d."""
-    from pcdet.detector import Trace
-    from pcdet.metrics import add
-    from pcdet.synth import SynthConfig, synthesize
-    from pcdet.verify import resolve_conflicts
+def _found_with_targets(ds, library, cfg, depth_only: bool = False) -> list[int]:
+    """Per image of ``ds``, with its objects given: the ground-truth instances a detector of ``cfg`` finds within
+    ADD-S 0.1 d (``depth_only``: without the colour images, as LM-O is evaluated)."""
+    import dataclasses
 
-    ds = BopDataset(synthesize(library, tmp_path / "suite", SynthConfig(scenes=5, objects=4, seed=2026)))
-    img = ds.images[4]
-    det, trace, frame = Detector(library), Trace(), ds.frame(img)
-    res = det.detect(frame, ds.targets(img), trace=trace)
-    step = library.by_id(5)
-    T_gt = next(g["T_cam_model"] for g in ds.gt(img) if g["obj_id"] == 5)
-    assert any(d.obj_id == 5 and add(d.T_cam_model, T_gt, step.points) < 0.1 * step.diameter
-               for d in res.detections)
-    # the situation: by score alone, the step block's candidates all lose their pixels to better-scoring poses
-    walk = resolve_conflicts(trace.accepted, [v.support for v in trace.verifications],
-                             det.config.verify.conflict_overlap, frame.depth.size)
-    assert not any(library[trace.hypotheses[trace.refined[j]].model_index].obj_id == 5 for j in walk)
+    det, found = Detector(library, cfg), []
+    for img in ds:
+        frame = ds.frame(img)
+        dets = det.detect(dataclasses.replace(frame, rgb=None) if depth_only else frame, ds.targets(img)).detections
+        n = 0
+        for g in ds.gt(img):
+            m = library.by_id(g["obj_id"])
+            n += any(d.obj_id == g["obj_id"] and adds(d.T_cam_model, g["T_cam_model"], m.points) < 0.1 * m.diameter
+                     for d in dets)
+        found.append(n)
+    return found
+
+
+@pytest.mark.slow
+def test_with_targets_global_selection_keeps_objects_that_a_walk_by_score_loses(tmp_path, library):
+    """8 scenes of 4 parts (synth's default scenes, seed 2026), objects given. Global selection (the default) keeps
+    the set of candidates that best explains the depth, where the walk by score alone (``selection =
+    "threshold"``) lets a better-scoring pose of another object take an object's pixels (as in scenes 3 and 5,
+    where a bracket laid onto the step block scores above the step block's true pose). Global selection finds at
+    least 2 instances more over the 8 scenes (32 of 32 against 29 measured) and at least 0.9 of them."""
+    from pcdet.synth import SynthConfig, synthesize
+
+    ds = BopDataset(synthesize(library, tmp_path / "suite", SynthConfig(scenes=8, objects=4, seed=2026)))
+    total = sum(len(ds.gt(img)) for img in ds)
+    best = sum(_found_with_targets(ds, library, PipelineConfig()))
+    walk = sum(_found_with_targets(ds, library, PipelineConfig().replace(verify={"selection": "threshold"})))
+    assert best >= walk + 2 and best >= 0.9 * total, (best, walk, total)
 
 
 def test_places_adds_the_best_candidates_at_new_places_until_enough_are_covered():
@@ -292,69 +301,21 @@ def test_places_adds_the_best_candidates_at_new_places_until_enough_are_covered(
     assert _places(centres, [0, 1], [2, 3, 4, 5], 0.1, 1, beyond=True) == [3]  # one place more than chosen cover
 
 
-def _six_part_scene(tmp_path, library, scene: int, obj_id: int = 5):
-    """Scene ``scene`` (1-based) of a suite of the six parts with 3 distractors (seed 5), depth only (as LM-O is
-    evaluated): the dataset, its image, the frame, and whether a pose (4, 4) puts object ``obj_id`` (default: the
-    step block) within ADD-S 0.1 d of its true pose."""
-    import dataclasses
-
-    from pcdet.metrics import adds
+@pytest.mark.slow
+def test_with_targets_candidates_are_refined_at_several_places(tmp_path, library):
+    """8 scenes of the six parts among 3 distractors (seed 5), depth only, objects given. A model's best-looking
+    raw poses often lie on other objects' faces (the step block's and the bracket's do in scene 5), so its coarse
+    and full ICPs, spent on the best-looking poses alone (``refine.places = 0``, no ``retry_places``), all go to
+    one wrong place and the object is lost. Spread over 3 places (the default) they reach it: at least 3 instances
+    more over the 8 scenes (45 against 39 of 48 measured) and at least 0.9 of them."""
     from pcdet.synth import SynthConfig, synthesize
 
-    cfg = SynthConfig(scenes=scene, objects=6, distractors=3, seed=5)
-    ds = BopDataset(synthesize(library, tmp_path / "suite", cfg))
-    img = ds.images[scene - 1]
-    obj = library.by_id(obj_id)
-    T_gt = next(g["T_cam_model"] for g in ds.gt(img) if g["obj_id"] == obj_id)
-    return ds, img, dataclasses.replace(ds.frame(img), rgb=None), \
-        lambda T: adds(T, T_gt, obj.points) < 0.1 * obj.diameter
-
-
-@pytest.mark.slow
-def test_with_targets_a_model_is_refined_at_other_places_than_where_it_looks_best(tmp_path, library):
-    """Scene 5 of the six-part suite (``_six_part_scene``), objects given: at first look the step block's raw poses
-    on other objects' faces all look better than its own, so its three full ICPs went to one wrong place and it was
-    lost (``refine.places = 0``, and no retry where it is left short: ``retry_places = 0``). With its full ICPs
-    spread over 3 places it is found within ADD-S 0.1 d (0.013 d measured)."""
-    from pcdet.config import PipelineConfig
-    from pcdet.detector import Trace
-
-    ds, img, frame, near = _six_part_scene(tmp_path, library, 5)
-    res = Detector(library).detect(frame, ds.targets(img))
-    assert any(d.obj_id == 5 and near(d.T_cam_model) for d in res.detections)
-    trace = Trace()
-    Detector(library, PipelineConfig().replace(refine={"places": 0, "retry_places": 0})).detect(
-        frame, ds.targets(img), trace=trace)
-    refined = [trace.registrations[n] for n, k in enumerate(trace.refined)
-               if library[trace.hypotheses[k].model_index].obj_id == 5]
-    assert refined and not any(near(r.T_target_source) for r in refined)
-
-
-@pytest.mark.slow
-def test_with_targets_the_coarse_icps_reach_more_places_too(tmp_path, library):
-    """Scene 5 of the six-part suite, objects given, the bracket (obj 1): its best-looking raw poses lie on other
-    objects and distractors (the first three look 0.98-0.99, about 2 d from the truth), and its raw poses within
-    0.1 d rank 20th and below (0.76 and less), past the 12 coarse ICPs. Before ``refine.places`` applied to the
-    coarse ICPs as well as to the full ones, no raw pose near the truth got a coarse ICP, so none got a full one,
-    and the bracket was lost (as now with ``places = 0``, which turns both off). With the coarse ICPs spread over 3
-    places one reaches it, and the bracket is found within ADD-S 0.1 d (0.017 d measured)."""
-    from pcdet.config import PipelineConfig
-    from pcdet.detector import Trace
-
-    ds, img, frame, near = _six_part_scene(tmp_path, library, 5, obj_id=1)
-    bracket = library.index_of(1)
-
-    def coarse_near(trace):
-        return [k for k in trace.coarse
-                if trace.hypotheses[k].model_index == bracket and near(trace.hypotheses[k].T_scene_model)]
-
-    trace = Trace()
-    res = Detector(library).detect(frame, ds.targets(img), trace=trace)
-    assert any(d.obj_id == 1 and near(d.T_cam_model) for d in res.detections)
-    assert coarse_near(trace)
-    trace = Trace()
-    Detector(library, PipelineConfig().replace(refine={"places": 0})).detect(frame, ds.targets(img), trace=trace)
-    assert not coarse_near(trace)
+    ds = BopDataset(synthesize(library, tmp_path / "suite", SynthConfig(scenes=8, objects=6, distractors=3, seed=5)))
+    total = sum(len(ds.gt(img)) for img in ds)
+    spread = sum(_found_with_targets(ds, library, PipelineConfig(), depth_only=True))
+    one = sum(_found_with_targets(ds, library, PipelineConfig().replace(refine={"places": 0, "retry_places": 0}),
+                                  depth_only=True))
+    assert spread >= one + 3 and spread >= 0.9 * total, (spread, one, total)
 
 
 def _walk_case(library, monkeypatch, cands, explained, clutter):
@@ -443,26 +404,20 @@ def test_with_targets_the_redone_walk_takes_each_object_only_up_to_its_count(lib
 
 @pytest.mark.slow
 def test_with_targets_an_object_left_short_is_refined_at_more_places(tmp_path, library):
-    """Scene 3 of the crowded suite (``pcdet synth --objects 3 --instances 3 --distractors 3 --seed 2026``),
-    objects given. One of the step blocks given is left without a pose after selection: the full ICPs of the step
-    block went to other places. With ``refine.retry_places`` (1) its best-looking coarse candidate at a new place
-    is refined and selection runs again, and every step block is found within ADD-S 0.1 d (the third at
-    0.015 d measured); with ``retry_places = 0`` one is missed."""
+    """8 crowded scenes (``pcdet synth --objects 3 --instances 3 --distractors 3 --seed 2026``), objects given with
+    their counts. Where an object given is left without a pose after selection (its full ICPs went to other
+    places, as for a step block of scene 3), ``refine.retry_places`` (1) refines its best-looking coarse candidate
+    at a new place and selects again: at least 1 instance more over the 8 scenes than with ``retry_places = 0``
+    (45 against 43 of 50 measured), and at least 0.85 of them. The retry keeps the output independent of the
+    thread count."""
     from pcdet.synth import SynthConfig, synthesize
 
     ds = BopDataset(synthesize(library, tmp_path / "suite",
-                               SynthConfig(scenes=3, objects=3, instances=3, distractors=3, seed=2026)))
-    img = ds.images[2]
-    step = library.by_id(5)
-    truths = [g["T_cam_model"] for g in ds.gt(img) if g["obj_id"] == 5]
-    assert len(truths) >= 2
-
-    def found(cfg):
-        dets = [d for d in Detector(library, cfg).detect(ds.frame(img), ds.targets(img)).detections if d.obj_id == 5]
-        return sum(any(adds(d.T_cam_model, T, step.points) < 0.1 * step.diameter for d in dets) for T in truths)
-
-    assert found(PipelineConfig()) == len(truths)
-    assert found(PipelineConfig().replace(refine={"retry_places": 0})) == len(truths) - 1
-    # the retry keeps the output independent of the thread count
+                               SynthConfig(scenes=8, objects=3, instances=3, distractors=3, seed=2026)))
+    total = sum(len(ds.gt(img)) for img in ds)
+    retried = _found_with_targets(ds, library, PipelineConfig())
+    once = _found_with_targets(ds, library, PipelineConfig().replace(refine={"retry_places": 0}))
+    assert sum(retried) >= sum(once) + 1 and sum(retried) >= 0.85 * total, (retried, once, total)
+    img = ds.images[max(range(len(ds)), key=lambda k: retried[k] - once[k])]  # where the retry helped
     one, two = (Detector(library, workers=n).detect(ds.frame(img), ds.targets(img)).detections for n in (1, 2))
     assert [(d.obj_id, d.T_cam_model.tobytes()) for d in one] == [(d.obj_id, d.T_cam_model.tobytes()) for d in two]

@@ -126,12 +126,14 @@ def test_a_family_is_grouped_once_and_each_size_verified_on_its_own(tmp_path, sy
                    for e in with_copies), (d, with_copies)
 
 
-def test_a_scaled_copy_in_view_is_found_at_its_own_size(tmp_path):
-    """A scene holding only the bracket scaled by 1.08, with the bracket and its 0.92 and 1.08 copies in the
-    library: the one detection is the 1.08 copy within 3 mm ADD-S, though grouping ran for the bracket. In this
-    scene (synth seed 7) the fitted scales leave the choice to the outline (``verify.size_fit``), which keeps the
-    copy with the detector's seeds 0-5; in other scenes it keeps the original bracket more often (seed 3: the copy
-    with 4 of 6 seeds; seeds 5 and 9: with none; docs/measurements.md)."""
+@pytest.mark.slow
+def test_a_scaled_copy_in_view_is_found_as_a_member_of_its_family(tmp_path):
+    """8 scenes each holding only the bracket scaled by 1.08, with the bracket and its 0.92 and 1.08 copies in the
+    library: in every scene the one detection is a member of the family, on the object: within ADD-S 0.05 d of the
+    truth, measured with the 1.08 copy's own points (a member 8 or 16 % off in size, laid onto the object, leaves
+    a mean gap of about 0.03 d; any other model or place leaves far more). Which member is kept is not asserted: at
+    this range the outline tells sizes 8 % apart only by chance (the 1.08 copy in 2 of 8 scenes, the 0.92 one in
+    3; docs/measurements.md)."""
     from pcdet.synth import SynthConfig, synthesize
 
     folder = _with_copies(tmp_path)
@@ -139,20 +141,19 @@ def test_a_scaled_copy_in_view_is_found_at_its_own_size(tmp_path):
         if f.stem not in ("obj_000001", "obj_000101", "obj_000201"):
             f.unlink()
     lib = ModelLibrary.from_folder(folder)
-    scene_lib = ModelLibrary([lib[lib.index_of(201)]])
-    out = synthesize(scene_lib, tmp_path / "scene", SynthConfig(scenes=1, objects=1, seed=7))
-    ds = BopDataset(out)
-    ref = ds.images[0]
-    gt = ds.gt(ref)[0]
-    det = Detector(lib, PipelineConfig(seed=4), workers=1)
-    res = det.detect(ds.frame(ref))
     m = lib[lib.index_of(201)]
-    assert [d.obj_id for d in res.detections] == [201], res
-    assert adds(res.detections[0].T_cam_model, gt["T_cam_model"], m.points) < 0.003
+    ds = BopDataset(synthesize(ModelLibrary([m]), tmp_path / "scenes", SynthConfig(scenes=8, objects=1, seed=7)))
+    det = Detector(lib, PipelineConfig(), workers=1)
     assert [f.members for f in det.families] == [(0, 1, 2)] and det.families[0].representative == 0
+    for img in ds:
+        (gt,) = ds.gt(img)
+        found = det.detect(ds.frame(img)).detections
+        assert [d.obj_id for d in found] in ([1], [101], [201]), (img, found)
+        assert adds(found[0].T_cam_model, gt["T_cam_model"], m.points) < 0.05 * m.diameter, (img, found)
     # the diagnosis counts the copy's matches through the bracket's candidate table
-    diag = diagnose_frame(det, ds.frame(ref), [gt], None)[0]
-    assert diag.stage == "found" and diag.keypoints_matched >= 3, diag
+    img = ds.images[0]
+    diag = diagnose_frame(det, ds.frame(img), ds.gt(img), None)[0]
+    assert diag.keypoints_matched >= 3, diag
 
 
 @pytest.mark.real

@@ -16,9 +16,9 @@ from pcdet.tracking import Tracker, TrackingConfig
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory, library):
     """20 frames sweeping 30 deg around 3 objects (the step block, the elbow, the T-joint). A recording whose first
-    frame the detector gets right with its seeds 0, 1 and 2 alike, so that these tests check the tracking, not one
-    run of RANSAC's draws. The runs that lose an object (2 of 18 over the recordings of seeds 12-17 and the
-    detector's seeds 0-2) are written down in the README."""
+    frame the detector gets right with its seeds 0, 1 and 2 alike, so that the tests on it check one mechanism of
+    the tracking each, not one run of RANSAC's draws; how often tracking holds over recordings of other seeds is
+    ``test_tracking_holds_over_recordings_of_several_seeds``."""
     return synthesize(library, tmp_path_factory.mktemp("trk"), SynthConfig(scenes=1, objects=3, sequence=20,
                                                                             sweep_deg=30.0, seed=13))
 
@@ -52,6 +52,24 @@ def test_objects_stay_within_5mm_of_the_truth_in_every_frame(recording, library)
         want = rec.frame(list(rec)[last]).T_input_cam @ np.linalg.inv(res.camera_poses[last]) @ t.T_world_fused
         np.testing.assert_allclose(d.T_cam_model, want, atol=1e-9)
         assert t.fused >= 2
+
+
+@pytest.mark.slow
+def test_tracking_holds_over_recordings_of_several_seeds(tmp_path, library):
+    """Recordings of seeds 12-17 made as ``recording`` is (3 objects each, 18 in all): at least 15 of the 18
+    objects are followed by one track each, seen in at least 15 of the 20 frames and within 5 mm of the truth in
+    every one (16 measured: in seed 12 the first detection is right, yet two tracks, the flange's and the T-joint's,
+    stray 12.4 and 8.5 mm from the truth in some frame)."""
+    held = 0
+    for seed in range(12, 18):
+        rec = open_recording(synthesize(library, tmp_path / str(seed), SynthConfig(
+            scenes=1, objects=3, sequence=20, sweep_deg=30.0, seed=seed)))
+        res = Tracker(Detector(library), TrackingConfig(redetect_every=10)).run(rec)
+        for oid, pos in _truth(rec):
+            tracks = [t for t in res.tracks if t.obj_id == oid]
+            held += len(tracks) == 1 and len(tracks[0].frames) >= 15 and max(
+                np.linalg.norm(T[:3, 3] - pos[f]) for f, T in zip(tracks[0].frames, tracks[0].poses)) < 0.005
+    assert held >= 15, held
 
 
 @pytest.mark.slow
