@@ -53,7 +53,7 @@ def test_every_readme_block_runs(tmp_path):
             p = subprocess.run(["bash", "-c", cmd], cwd=work, env=env, capture_output=True, text=True, timeout=900)
             assert p.returncode == 0, f"README command failed: {cmd}\n{p.stdout[-2000:]}\n{p.stderr[-2000:]}"
             ran += 1
-    assert ran >= 20, ran
+    assert ran + len(skipped) >= 20, (ran, skipped)  # fewer: the blocks were not all found
     _outputs_are_right(work)
     if skipped:
         pytest.skip(f"ran {ran} README commands; {len(skipped)} need ../shared/data, which is absent")
