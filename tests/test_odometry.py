@@ -404,8 +404,9 @@ def test_a_camera_turning_towards_unseen_ground_is_not_taken_for_lost(monkeypatc
     ate = ate_rmse([odo.step(rec.frame(r)) for r in refs], gt)
     on = np.array([f[0] for f in fits])
     near = np.array([f[1] for f in fits])
-    assert on.min() < 0.8 and (on / near).min() > 0.9, (on.min(), (on / near).min())
-    assert len(fits) == len(refs) - 1 and odo.recovered == 0, "one check a frame: no second registration"
+    assert on.min() < 0.8, on.min()  # the situation: a rule on the share on the map alone would call it lost
+    # what decides is the share of the samples within reach (``recover_below``): no second registration runs
+    assert len(fits) == len(refs) - 1 and odo.recovered == 0, ("one check a frame", (on / near).min())
     assert ate < 0.02, ate
 
 
