@@ -5,6 +5,7 @@ import json
 from pathlib import Path
 
 from ..errors import InputError
+from .text import read_text
 
 
 def read_json(path, expect_object: bool = True, what: str = "file"):
@@ -12,11 +13,9 @@ def read_json(path, expect_object: bool = True, what: str = "file"):
     file) when it is not valid JSON or, with ``expect_object``, not a JSON object. ``what`` names the kind of
     file in the messages ("camera file", say)."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: {what} not found")
     try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        doc = json.loads(read_text(path, what))
+    except json.JSONDecodeError as e:
         raise InputError(f"{what} is not valid JSON ({e})", path) from None
     if expect_object and not isinstance(doc, dict):
         raise InputError(f"{what} must hold a JSON object", path)
