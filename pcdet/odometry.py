@@ -145,6 +145,7 @@ class _KeyframeICP:
         # keyframe, and the keyframe's camera
         self.keys: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         self.map = None  # (points, normals, tree, voxel)
+        self._vox: float | None = None  # the grid spacing of the newest keyframe: the map's cells
         self.recovered = 0  # frames whose pose a second registration changed
 
     def step(self, pts: np.ndarray, T_world_guess: np.ndarray) -> np.ndarray:
@@ -242,14 +243,13 @@ class _KeyframeICP:
         """The keyframes (each its points, normals, weights and camera), their grid spacing and the frames
         recovered, as plain data; the map is rebuilt from them (``load_state``) exactly as it was."""
         return {"keyframes": [{"points": p, "normals": n, "weights": w, "T_world_cam": T} for p, n, w, T in self.keys],
-                "voxel": getattr(self, "_vox", None), "recovered": self.recovered}
+                "voxel": self._vox, "recovered": self.recovered}
 
     def load_state(self, state: dict) -> None:
         self.keys = [(k["points"], k["normals"], k["weights"], k["T_world_cam"]) for k in state["keyframes"]]
         self.recovered = int(state["recovered"])
-        self.map = None
+        self.map, self._vox = None, state["voxel"]
         if self.keys:
-            self._vox = state["voxel"]
             self._build()
 
     def _add_key(self, pts: np.ndarray, vox: float, T_world_cam: np.ndarray) -> None:

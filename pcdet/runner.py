@@ -104,8 +104,8 @@ class RunFolder:
         written = sorted(self.frames.glob("*.json")) if self.frames.is_dir() else []
         old_path = self.path / "run.json"
         if overwrite:
-            states = sorted((self.path / "tracking_state").glob("*.np[z]")) + sorted(
-                (self.path / "tracking_state").glob("*.pkl"))  # and an earlier pcdet's pickled ones
+            # the checkpoints, and an earlier pcdet's pickled ones
+            states = sorted(p for p in (self.path / "tracking_state").glob("*") if p.suffix in (".npz", ".pkl"))
             for p in written + states + [self.path / f for f in RUN_FILES]:
                 p.unlink(missing_ok=True)
             return

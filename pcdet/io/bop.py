@@ -18,8 +18,9 @@ from .text import read_text
 
 RESULTS_HEADER = ["scene_id", "im_id", "obj_id", "score", "R", "t", "time"]
 # Largest max |R R^T - I| of a results row taken for a rotation and re-orthonormalised. BOP's own annotations are
-# orthonormal only to about 1e-3 (LM-O's driller: 2e-3, stored to a few decimals); 1e-2 keeps five times that, and
-# the nearest rotation then moves a point at most about 0.5 % of its distance from the model origin.
+# orthonormal only to about 1e-3 (LM-O's driller: 2e-3, stored to a few decimals); 1e-2 keeps five times that. The
+# nearest rotation removes R's symmetric part, whose entries are at most half the deviation, so it moves a point by
+# at most 1.5 % of its distance from the model origin (0.3 % at LM-O's 2e-3).
 ROTATION_TOLERANCE = 1e-2
 # Rows within this of a rotation are taken as written (pcdet writes R to 9 decimals, about 1e-9 off).
 ROTATION_EXACT = 1e-6
